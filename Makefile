@@ -1,0 +1,26 @@
+# Two commands do all the set-up: `make demo` runs the main job, `make test` runs the test suite.
+# Each creates .venv and installs the project on first use.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+
+.PHONY: demo test bench clean
+
+$(BIN)/swarmctl: pyproject.toml constraints.txt
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -c constraints.txt -e '.[test]'
+	touch $(BIN)/swarmctl
+
+demo: $(BIN)/swarmctl
+	$(BIN)/swarmctl eval --scenario cluster --episodes 200 --seed 0 \
+		--policy random --policy la:4 --policy lawnmower --policy frontier --policy oracle
+
+test: $(BIN)/swarmctl
+	$(BIN)/python -m pytest
+
+bench: $(BIN)/swarmctl
+	$(BIN)/swarmctl bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,37 @@
+"""The `swarmctl` command. Each sub-command is a thin layer over the packages."""
+
+from __future__ import annotations
+
+import sys
+
+import click
+
+from swarmctl.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, InputError
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
+@click.version_option(package_name="swarmctl")
+def cli() -> None:
+    """Drone-swarm search: simulate, train, plan over real areas, fly over MAVLink."""
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI, turning bad input into one line on stderr and exit status 2."""
+    try:
+        cli.main(args=argv, prog_name="swarmctl", standalone_mode=False)
+    except InputError as exc:
+        click.echo(f"swarmctl: error: {exc}", err=True)
+        return EXIT_BAD_INPUT
+    except (click.exceptions.Abort, KeyboardInterrupt):
+        click.echo("swarmctl: interrupted", err=True)
+        return EXIT_INTERRUPTED
+    except click.exceptions.Exit as exc:
+        return exc.exit_code
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
