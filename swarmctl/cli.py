@@ -15,6 +15,13 @@ def cli() -> None:
     """Drone-swarm search: simulate, train, plan over real areas, fly over MAVLink."""
 
 
+from swarmctl.learn.cli import eval_command  # noqa: E402
+from swarmctl.bench import bench_command  # noqa: E402
+
+cli.add_command(eval_command)
+cli.add_command(bench_command)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line on stderr and exit status 2."""
     try:

@@ -1,0 +1,87 @@
+"""World parameters: the paper's defaults, every open choice a documented field."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+from swarmctl.errors import ScenarioError
+
+SCENARIOS = ("sparse", "cluster")
+CHANNELS = ("ideal", "none", "model", "fixed")
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Everything that defines an episode distribution and the world's rules.
+
+    Defaults are the paper's (M = 20, U = 2, K = 4, F = 20, zeta = 3, theta = 1, psi = 0.8).
+    """
+
+    scenario: str = "cluster"  # sparse | cluster
+    map_size: int = 20  # M: the grid is M x M
+    targets: int = 4  # K
+    clusters: int = 1  # C: cluster scenario only; > 1 is the multi-cluster extension
+    uavs: int = 2  # U
+    obstacles: float = 0.0  # eta: fraction of cells covered by rectangular obstacles
+    obstacle_min: int = 1  # h_min: smallest rectangle side (OPEN in the paper)
+    obstacle_max: int = 4  # h_max: largest rectangle side (OPEN in the paper)
+    d_sparse: float = 8.0  # sparse targets are more than this far apart
+    sigma2: float = 1.0  # value-map spread
+    phi_cutoff: float = 0.01  # phi below this reads 0
+    fov: float = 3.0  # zeta: sensing disc radius in cells
+    window: int = 20  # F: observation window side
+    rho: float = 0.2  # obstacle weight in the value channel
+    theta: float = 1.0  # invalid-move penalty
+    psi: float = 0.8  # collision penalty
+    channel: str = "ideal"  # ideal | none | model | fixed
+    loss: float = 0.0  # packet-loss probability for channel "fixed"
+    cell_size: float = 10.0  # metres per cell, for the channel model
+    guard: bool = False  # refuse moves into a cell another vehicle holds or enters (controller's guard)
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ScenarioError naming the parameter and its limit for any impossible request."""
+        m = self.map_size
+        if self.scenario not in SCENARIOS:
+            raise ScenarioError(f"--scenario {self.scenario!r} is unknown: use one of {', '.join(SCENARIOS)}")
+        if m < 1:
+            raise ScenarioError(f"--map {m} is too small: the map side M must be >= 1")
+        if self.window < 1:
+            raise ScenarioError(f"--window {self.window} is too small: F must be >= 1")
+        if self.uavs < 1:
+            raise ScenarioError(f"--uavs {self.uavs}: at least 1 vehicle is needed")
+        if self.targets < 1:
+            raise ScenarioError(f"--targets {self.targets}: at least 1 target is needed")
+        if not 1 <= self.clusters <= self.targets:
+            raise ScenarioError(f"--clusters {self.clusters} must be between 1 and --targets ({self.targets})")
+        if self.fov < 0:
+            raise ScenarioError(f"--fov {self.fov} must be >= 0")
+        if not 0.0 <= self.obstacles <= 0.4:
+            raise ScenarioError(f"--obstacles {self.obstacles} cannot be placed: eta must be in [0, 0.4]")
+        if not 1 <= self.obstacle_min <= self.obstacle_max:
+            raise ScenarioError("obstacle sides need 1 <= obstacle_min <= obstacle_max")
+        if self.channel not in CHANNELS:
+            raise ScenarioError(f"--channel {self.channel!r} is unknown: use one of {', '.join(CHANNELS)}")
+        if not 0.0 <= self.loss <= 1.0:
+            raise ScenarioError(f"packet loss {self.loss} must be a probability in [0, 1]")
+        if self.cell_size <= 0:
+            raise ScenarioError(f"--cell-size {self.cell_size} must be > 0 metres")
+        cells = m * m
+        # Targets need room for their spacing rule: at most one per 2x2 block in the cluster rule.
+        max_targets = math.ceil(m / 2) ** 2
+        if self.targets > max_targets:
+            raise ScenarioError(
+                f"--targets {self.targets} do not fit on a {m} x {m} map with spacing > 1: at most {max_targets}"
+            )
+        free_after_obstacles = int(cells * (1.0 - self.obstacles)) - self.targets
+        if self.uavs > free_after_obstacles:
+            raise ScenarioError(
+                f"--uavs {self.uavs} is larger than the free cells ({max(free_after_obstacles, 0)}) "
+                f"of a {m} x {m} map with {self.targets} targets and eta {self.obstacles}"
+            )
+
+    def as_dict(self) -> dict:
+        return asdict(self)
