@@ -17,7 +17,7 @@ demo: $(BIN)/swarmctl
 		--policy random --policy la:4 --policy lawnmower --policy frontier --policy oracle
 
 test: $(BIN)/swarmctl
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -q
 
 bench: $(BIN)/swarmctl
 	$(BIN)/swarmctl bench

@@ -127,7 +127,7 @@ def sweep_waypoints(width: int, height: int, uavs: int, fov: float) -> list[np.n
     reach = max(int(np.floor(fov)), 0)
     spacing = 2 * reach + 1
     bounds = np.linspace(0, width, uavs + 1).round().astype(int)
-    lo_y, hi_y = min(reach, height - 1), max(height - 1 - reach, 0)
+    lo_y, hi_y = 0, height - 1  # lanes run edge to edge, or the disc misses the corners
     out = []
     for v in range(uavs):
         x_lo, x_hi = bounds[v], max(bounds[v + 1] - 1, bounds[v])

@@ -1,0 +1,65 @@
+"""The command line: eval's JSON contract, bench's JSON keys, and bad input as one line + exit 2."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from swarmctl.cli import main
+
+
+def run(*args):
+    proc = subprocess.run([sys.executable, "-m", "swarmctl.cli", *args], capture_output=True, text=True, timeout=300)
+    return proc.returncode, proc.stdout, proc.stderr
+
+
+def test_eval_json_holds_one_result_per_policy(tmp_path):
+    out = tmp_path / "r.json"
+    code = main(["eval", "--episodes", "20", "--policy", "la:2", "--policy", "oracle", "--seed", "3",
+                 "--json", str(out), "--no-progress"])
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert [r["policy"] for r in data["results"]] == ["la:2", "oracle"]
+    for r in data["results"]:
+        for key in ("success_rate", "mean_steps", "steps_cdf", "episodes", "policy", "scenario", "seed"):
+            assert key in r
+        assert r["episodes"] == 20 and r["seed"] == 3 and len(r["steps_cdf"]) == 40
+        assert r["scenario"]["map_size"] == 20 and r["scenario"]["uavs"] == 2 and r["scenario"]["targets"] == 4
+        assert r["scenario"]["window"] == 20 and r["scenario"]["steps"] == 40
+
+
+def test_single_policy_json_is_still_a_list(tmp_path):
+    out = tmp_path / "r.json"
+    assert main(["eval", "--episodes", "5", "--policy", "random", "--json", str(out), "--no-progress"]) == 0
+    assert len(json.loads(out.read_text())["results"]) == 1
+
+
+def test_bench_json_names_units(tmp_path):
+    out = tmp_path / "b.json"
+    assert main(["bench", "--seconds", "0.05", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["env_vehicle_steps_per_s"] > 0 and data["la4_decision_ms"] > 0
+    assert data["env_m50_u10_vehicle_steps_per_s"] > 0
+
+
+@pytest.mark.parametrize("args, needle", [
+    (["eval", "--policy", "nonsense"], "--policy"),
+    (["eval", "--policy", "la:x"], "la:4"),
+    (["eval", "--policy", "random", "--map", "0"], "--map"),
+    (["eval", "--policy", "random", "--window", "0"], "--window"),
+    (["eval", "--policy", "random", "--targets", "200"], "--targets"),
+    (["eval", "--policy", "random", "--obstacles", "0.95"], "--obstacles"),
+    (["eval", "--policy", "random", "--map", "3", "--uavs", "10"], "--uavs"),
+    (["eval", "--policy", "random", "--episodes", "0"], "--episodes"),
+    (["eval", "--policy", "random", "--steps", "0"], "--steps"),
+    (["eval", "--scenario", "sparse", "--targets", "9", "--policy", "random", "--no-progress"], "--targets"),
+    (["eval", "--policy", "random", "--uavs", "many"], "--uavs"),
+])
+def test_bad_input_is_one_clear_line_and_exit_2(args, needle):
+    code, out, err = run(*args)
+    assert code == 2
+    assert "Traceback" not in err
+    assert needle in err
+    lines = [line for line in err.splitlines() if line.strip().startswith("swarmctl: error") or "Error" in line]
+    assert len(lines) == 1

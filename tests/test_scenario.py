@@ -1,0 +1,122 @@
+"""The paper's scenario rules, checked over many seeds."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmctl.errors import ScenarioError
+from swarmctl.world import WorldConfig, generate_scenario, value_map
+from swarmctl.world.paths import UNREACHABLE, grid_distances
+from swarmctl.world.scenario import fov_offsets
+
+seeds = st.integers(0, 2**31 - 1)
+episodes = st.integers(0, 10_000)
+
+
+def pairwise(points):
+    d = points[:, None, :] - points[None, :, :]
+    dist = np.sqrt((d**2).sum(-1))
+    return dist[~np.eye(len(points), dtype=bool)]
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds, episodes)
+def test_sparse_targets_are_more_than_d_sparse_apart(seed, ep):
+    s = generate_scenario(WorldConfig(scenario="sparse"), seed, ep)
+    assert pairwise(s.targets).min() > 8.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(seeds, episodes, st.integers(1, 4))
+def test_cluster_targets_are_more_than_one_apart(seed, ep, clusters):
+    cfg = WorldConfig(scenario="cluster", map_size=24, targets=8, clusters=clusters)
+    s = generate_scenario(cfg, seed, ep)
+    assert len(s.targets) == 8
+    assert pairwise(s.targets).min() > 1.0
+    assert (s.targets >= 0).all() and (s.targets < 24).all()
+
+
+def _rect_cells(rect):
+    x0, y0, w, h = rect
+    xs, ys = np.meshgrid(np.arange(x0, x0 + w), np.arange(y0, y0 + h), indexing="ij")
+    return np.stack([xs.ravel(), ys.ravel()], axis=1)
+
+
+@settings(max_examples=150, deadline=None)
+@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.sampled_from([0.05, 0.1, 0.2]))
+def test_obstacle_rules(seed, ep, scenario, eta):
+    cfg = WorldConfig(scenario=scenario, obstacles=eta)
+    s = generate_scenario(cfg, seed, ep)
+    m = cfg.map_size
+    assert s.obstacles.mean() >= eta
+    union = np.zeros_like(s.obstacles)
+    for i, rect in enumerate(s.obstacle_rects):
+        cells = _rect_cells(rect)
+        assert 1 <= rect[2] <= cfg.obstacle_max and 1 <= rect[3] <= cfg.obstacle_max
+        assert (cells >= 0).all() and (cells < m).all(), "rectangle inside the map"
+        to_targets = np.sqrt(((cells[:, None] - s.targets[None]) ** 2).sum(-1))
+        assert to_targets.min() > 1.0, "every obstacle cell more than 1 from every target"
+        for other in s.obstacle_rects[:i]:
+            oc = _rect_cells(other)
+            assert np.sqrt(((cells[:, None] - oc[None]) ** 2).sum(-1)).min() >= 2.0
+        union[cells[:, 0], cells[:, 1]] = True
+    assert (union == s.obstacles).all()
+
+
+@settings(max_examples=150, deadline=None)
+@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.sampled_from([0.0, 0.1, 0.2]),
+       st.integers(1, 6))
+def test_starts_distinct_free_and_every_target_reachable_from_every_start(seed, ep, scenario, eta, uavs):
+    cfg = WorldConfig(scenario=scenario, obstacles=eta, uavs=uavs)
+    s = generate_scenario(cfg, seed, ep)
+    assert len({tuple(p) for p in s.starts}) == uavs
+    assert not s.obstacles[s.starts[:, 0], s.starts[:, 1]].any()
+    assert not {tuple(p) for p in s.starts} & {tuple(t) for t in s.targets}
+    src = np.zeros((1, *s.obstacles.shape), dtype=bool)
+    src[0, s.starts[:, 0], s.starts[:, 1]] = True
+    for start in s.starts:
+        one = np.zeros_like(src)
+        one[0, start[0], start[1]] = True
+        dist = grid_distances(~s.obstacles[None], one)[0]
+        assert (dist[s.targets[:, 0], s.targets[:, 1]] < UNREACHABLE).all()
+
+
+def test_same_seed_same_episode_and_episodes_differ():
+    cfg = WorldConfig(obstacles=0.1)
+    a, b = generate_scenario(cfg, 7, 3), generate_scenario(cfg, 7, 3)
+    assert (a.targets == b.targets).all() and (a.obstacles == b.obstacles).all() and (a.starts == b.starts).all()
+    c = generate_scenario(cfg, 7, 4)
+    assert not ((a.targets == c.targets).all() and (a.starts == c.starts).all())
+
+
+def test_value_map_values_and_cutoff():
+    phi = value_map(np.array([[5, 5]]), 12, 12)
+    assert phi[5, 5] == 1.0
+    assert phi[6, 5] == pytest.approx(np.exp(-0.5))
+    assert phi[6, 6] == pytest.approx(np.exp(-1.0))
+    assert phi[8, 5] == pytest.approx(np.exp(-4.5))  # 0.011 >= 0.01: kept
+    assert phi[8, 6] == 0.0  # exp(-5) = 0.0067 < 0.01: cut
+    two = value_map(np.array([[1, 1], [3, 1]]), 6, 6)
+    assert two[2, 1] == pytest.approx(np.exp(-0.5))  # max over targets, not a sum
+
+
+def test_fov_disc_has_29_cells_for_radius_3():
+    off = fov_offsets(3.0)
+    assert len(off) == 29
+    assert ((off**2).sum(1) <= 9).all()
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(map_size=0), "--map"), (dict(uavs=0), "--uavs"), (dict(targets=101), "--targets"),
+    (dict(obstacles=0.9), "--obstacles"), (dict(window=0), "--window"), (dict(map_size=3, uavs=9), "--uavs"),
+    (dict(clusters=5), "--clusters"),
+])
+def test_impossible_requests_name_the_parameter(kwargs, name):
+    with pytest.raises(ScenarioError, match=name):
+        WorldConfig(**kwargs)
+
+
+def test_sparse_targets_that_cannot_fit_fail_after_retries():
+    with pytest.raises(ScenarioError, match="--targets"):
+        generate_scenario(WorldConfig(scenario="sparse", targets=9), 0, 0)
