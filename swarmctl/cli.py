@@ -15,10 +15,11 @@ def cli() -> None:
     """Drone-swarm search: simulate, train, plan over real areas, fly over MAVLink."""
 
 
-from swarmctl.learn.cli import eval_command  # noqa: E402
+from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 from swarmctl.bench import bench_command  # noqa: E402
 
 cli.add_command(eval_command)
+cli.add_command(train_command)
 cli.add_command(bench_command)
 
 

@@ -50,3 +50,64 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
         json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps({"results": results}, indent=1))
         click.echo(f"wrote {json_path}")
+
+
+@click.command("train")
+@world_options
+@click.option("--episodes", type=int, default=3000, show_default=True, help="Training episodes N_e.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed: same seed, same machine, same model.")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="Checkpoint to write, e.g. models/cluster-2uav.pt (metrics go next to it as .csv).")
+@click.option("--init", type=click.Path(dir_okay=False, path_type=Path),
+              help="Start from this checkpoint (transfer learning).")
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True)
+@click.option("--exploration", type=click.Choice(["softmax", "egreedy"]), default="softmax", show_default=True)
+@click.option("--parallel", type=int, default=16, show_default=True, help="Episodes stepped together.")
+@click.option("--batch-size", type=int, default=64, show_default=True)
+@click.option("--updates-per-step", type=float, default=1.0, show_default=True,
+              help="Gradient steps per joint step of the parallel episodes.")
+@click.option("--lr", type=float, default=5e-4, show_default=True, help="RAdam learning rate.")
+@click.option("--prefill", type=int, default=1000, show_default=True, help="Random episodes in the replay first.")
+@click.option("--replay", "replay_capacity", type=int, default=100_000, show_default=True, help="Replay capacity.")
+@click.option("--target-every", type=int, default=500, show_default=True, help="n_q: steps between target copies.")
+@click.option("--plain-target", is_flag=True, help="Use the plain target-network target, not double DQN.")
+@click.option("--eval-every", type=int, default=250, show_default=True, help="Episodes between evaluations.")
+@click.option("--eval-episodes", type=int, default=200, show_default=True)
+@click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
+@click.option("--progress/--no-progress", default=True)
+def train_command(episodes, seed, out, init, device, exploration, parallel, batch_size, updates_per_step, lr, prefill,
+                  replay_capacity, target_every, plain_target, eval_every, eval_episodes, threads, progress, **kwargs):
+    """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
+    import torch
+
+    from swarmctl.learn.ddql import TrainConfig, train
+
+    world = world_config(kwargs)
+    require(episodes >= 1, f"--episodes {episodes} must be >= 1")
+    require(parallel >= 1, f"--parallel {parallel} must be >= 1")
+    require(batch_size >= 1, f"--batch-size {batch_size} must be >= 1")
+    require(updates_per_step > 0, f"--updates-per-step {updates_per_step} must be > 0")
+    require(lr > 0, f"--lr {lr} must be > 0")
+    require(prefill >= 0, f"--prefill {prefill} must be >= 0")
+    require(replay_capacity >= batch_size, f"--replay {replay_capacity} must hold at least one batch ({batch_size})")
+    require(target_every >= 1, f"--target-every {target_every} must be >= 1")
+    require(eval_every >= 1 and eval_episodes >= 1, "--eval-every and --eval-episodes must be >= 1")
+    require(threads >= 1, f"--threads {threads} must be >= 1")
+    require(world.window >= 8, f"--window {world.window}: the network needs F >= 8")
+    if init is not None:
+        require(init.is_file(), f"--init {init}: no such checkpoint file")
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
+    if prefill == 0:
+        prefill_note = "no prefill: the replay starts with the first training samples"
+        click.echo(prefill_note)
+    cfg = TrainConfig(episodes=episodes, parallel_envs=parallel, batch_size=batch_size,
+                      updates_per_step=updates_per_step, lr=lr, prefill_episodes=max(prefill, 1),
+                      replay_capacity=replay_capacity, target_update_every=target_every, double=not plain_target,
+                      exploration=exploration, eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
+    meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
+    final = meta["final_eval"] or {}
+    click.echo(f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
+               f"held-out success {final.get('success_rate', float('nan')):.3f}, "
+               f"mean steps {final.get('mean_steps', float('nan')):.2f}")

@@ -69,6 +69,10 @@ class WorldConfig:
             raise ScenarioError(f"packet loss {self.loss} must be a probability in [0, 1]")
         if self.cell_size <= 0:
             raise ScenarioError(f"--cell-size {self.cell_size} must be > 0 metres")
+        if self.targets < self.uavs:
+            raise ScenarioError(
+                f"--targets {self.targets} < --uavs {self.uavs}: success needs a distinct target for every vehicle"
+            )
         cells = m * m
         # Targets need room for their spacing rule: at most one per 2x2 block in the cluster rule.
         max_targets = math.ceil(m / 2) ** 2

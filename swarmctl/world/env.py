@@ -55,6 +55,7 @@ class SearchEnv:
         self._disc_table: np.ndarray | None = None
         self.width = self.height = cfg.map_size
         self.scenarios: list[Scenario] = []
+        self.last_observations: np.ndarray | None = None
 
     # ----- episode set-up -------------------------------------------------------------------
     def reset(self, seed: int = 0, episodes: np.ndarray | range | None = None) -> np.ndarray | None:
@@ -92,7 +93,8 @@ class SearchEnv:
         self.collisions = np.zeros(b, dtype=np.int64)
         self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC4A7]))
         self._sense_and_share()
-        return self.observe() if self.observations else None
+        self.last_observations = self.observe() if self.observations else None
+        return self.last_observations
 
     # ----- one joint move -------------------------------------------------------------------
     def step(self, actions: np.ndarray):
@@ -130,7 +132,7 @@ class SearchEnv:
         if self.stop_at_success:
             self.done |= success
         self._sense_and_share()
-        obs = self.observe() if self.observations else None
+        obs = self.last_observations = self.observe() if self.observations else None
         return obs, reward, success, StepInfo(valid=valid, collided=collided, on_target=on_target, refused=refused)
 
     # ----- knowledge ------------------------------------------------------------------------
