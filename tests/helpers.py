@@ -19,7 +19,7 @@ def make_env(size, targets, starts, obstacles=(), stop_at_success=True, **cfg):
     """A batch-of-one env reset to a hand-built scenario."""
     cfg.setdefault("map_size", size)
     cfg.setdefault("uavs", len(starts))
-    cfg.setdefault("targets", 1)
+    cfg.setdefault("targets", len(starts))  # generation parameter only; reset_to uses the given targets
     env = SearchEnv(WorldConfig(**cfg), batch=1, stop_at_success=stop_at_success)
     env.reset_to([make_scenario(size, targets, starts, obstacles)])
     return env

@@ -143,7 +143,7 @@ def test_guard_refuses_moves_into_held_or_entered_cells():
 
 
 def test_guarded_world_never_has_collisions():
-    env = SearchEnv(WorldConfig(uavs=6, guard=True), batch=64, stop_at_success=False, observations=False)
+    env = SearchEnv(WorldConfig(uavs=6, targets=6, guard=True), batch=64, stop_at_success=False, observations=False)
     env.reset(seed=3)
     rng = np.random.default_rng(0)
     for _ in range(100):

@@ -1,0 +1,124 @@
+"""The Q-network, checkpoints, exploration, and small seconds-long training runs."""
+
+import csv
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from swarmctl.errors import InputError
+from swarmctl.learn.ddql import TrainConfig, train
+from swarmctl.learn.evaluate import evaluate
+from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
+from swarmctl.policy.ddql import make_ddql_policy, softmax_sample
+from swarmctl.policy.qnet import QNetwork, parameter_count
+from swarmctl.world import WorldConfig
+
+TINY_WORLD = WorldConfig(map_size=6, uavs=1, targets=1, window=8)
+
+
+def test_network_layers_and_parameter_count_match_the_paper():
+    net = QNetwork(20)
+    x = torch.zeros(2, 3, 20, 20)
+    shapes = []
+    for layer in net.features:
+        x = layer(x)
+        if isinstance(layer, torch.nn.Conv2d):
+            shapes.append(tuple(x.shape[1:]))
+    assert shapes == [(20, 20, 20), (20, 17, 17), (20, 7, 7)]
+    assert x.shape == (2, 980)
+    assert [m.out_features for m in net.head if isinstance(m, torch.nn.Linear)] == [64, 5]
+    assert parameter_count(net) == 76_509  # ~76.5 k, as PAPER.md derives
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(0, 10_000))
+def test_softmax_with_tiny_tau_is_greedy(seed):
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(50, 5))
+    assert (softmax_sample(q, 1e-4, rng) == q.argmax(1)).all()
+
+
+def test_softmax_sample_follows_the_distribution():
+    rng = np.random.default_rng(0)
+    q = np.tile([0.0, np.log(3.0), 0.0, 0.0, 0.0], (40_000, 1))
+    counts = np.bincount(softmax_sample(q, 1.0, rng), minlength=5) / 40_000
+    assert counts == pytest.approx([1 / 7, 3 / 7, 1 / 7, 1 / 7, 1 / 7], abs=0.01)
+
+
+def test_checkpoint_round_trip_and_validation(tmp_path):
+    net = QNetwork(8)
+    path = tmp_path / "m.pt"
+    save_checkpoint(path, net, TINY_WORLD.as_dict(), {"episodes": 1}, {"seed": 3})
+    loaded, info = load_checkpoint(path, window=8)
+    for a, b in zip(net.parameters(), loaded.parameters()):
+        assert torch.equal(a, b)
+    assert info["metadata"]["seed"] == 3 and info["world"]["map_size"] == 6
+    with pytest.raises(InputError, match="trained for 8 x 8"):
+        load_checkpoint(path, window=20)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(InputError, match="not a swarmctl checkpoint"):
+        load_checkpoint(junk)
+    other = tmp_path / "other.pt"
+    torch.save({"format": "swarmctl-ddql", "version": 1, "architecture": "resnet", "window": 8}, other)
+    with pytest.raises(InputError, match="architecture"):
+        load_checkpoint(other)
+    plain = tmp_path / "plain.pt"
+    torch.save(net.state_dict(), plain)
+    with pytest.raises(InputError, match="format marker"):
+        load_checkpoint(plain)
+    with pytest.raises(InputError, match="no such checkpoint"):
+        load_checkpoint(tmp_path / "missing.pt")
+
+
+@pytest.mark.parametrize("spec, needle", [("ddql", "give the checkpoint"), ("ddql:x.pt:tau=0", "tau"),
+                                          ("ddql:x.pt:tau=abc", "tau"), ("ddql-greedy:nope.pt", "no such")])
+def test_bad_policy_specs(spec, needle):
+    with pytest.raises(InputError, match=needle):
+        make_ddql_policy(spec)
+
+
+def tiny_config(episodes):
+    return TrainConfig(episodes=episodes, parallel_envs=8, prefill_episodes=20, batch_size=64, lr=1e-3,
+                       target_update_every=100, eval_every=episodes, eval_episodes=100, threads=1)
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train") / "tiny.pt"
+    meta = train(TINY_WORLD, tiny_config(96), seed=0, out=out, progress=False)
+    return out, meta
+
+
+def test_training_loss_falls(tiny_model):
+    out, _ = tiny_model
+    rows = list(csv.DictReader(open(out.with_suffix(".csv"))))
+    losses = [float(r["loss"]) for r in rows]
+    assert np.mean(losses[-3:]) < 0.5 * np.mean(losses[:2])
+
+
+def test_tiny_policy_beats_random_on_a_6x6_map(tiny_model):
+    out, meta = tiny_model
+    results = evaluate(TINY_WORLD, ["random", f"ddql:{out}"], 300, seed=0, steps=40, progress=False)
+    rand, learned = results
+    assert learned["success_rate"] > rand["success_rate"] + 0.15
+    assert learned["mean_steps"] < rand["mean_steps"]
+    assert meta["final_eval"]["success_rate"] > 0
+    _, info = load_checkpoint(out)
+    for key in ("scenario", "episodes", "seed", "git_commit", "wall_time_s", "evals"):
+        assert key in info["metadata"]
+
+
+def test_training_is_reproducible_and_transfer_starts_from_init(tmp_path):
+    a, b = tmp_path / "a.pt", tmp_path / "b.pt"
+    train(TINY_WORLD, tiny_config(16), seed=5, out=a, progress=False)
+    train(TINY_WORLD, tiny_config(16), seed=5, out=b, progress=False)
+    na, _ = load_checkpoint(a)
+    nb, _ = load_checkpoint(b)
+    assert all(torch.equal(x, y) for x, y in zip(na.parameters(), nb.parameters()))
+    c = tmp_path / "c.pt"
+    meta = train(TINY_WORLD, tiny_config(8), seed=6, out=c, init=a, progress=False)
+    assert meta["init"] == str(a) and meta["init_metadata"]["seed"] == 5
