@@ -15,6 +15,11 @@ def cli() -> None:
     """Drone-swarm search: simulate, train, plan over real areas, fly over MAVLink."""
 
 
+from swarmctl.geo.cli import plan_command  # noqa: E402
+
+cli.add_command(plan_command)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line on stderr and exit status 2."""
     try:
