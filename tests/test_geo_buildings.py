@@ -146,3 +146,10 @@ def test_building_file_problems(tmp_path):
         load_buildings(tmp_path / "b.shp")
     with pytest.raises(InputError, match="missing.geojson: file not found"):
         load_buildings(tmp_path / "missing.geojson")
+
+
+def test_buildings_all_outside_the_area_warn(tiny):
+    area, buildings = tiny
+    _, report = run(area, buildings(((20.0, 20.0, 21.0, 21.0), {"height": 90})))
+    assert report.buildings_used == 0
+    assert any("none of its 1 buildings lies in the area" in w for w in report.warnings)

@@ -27,14 +27,13 @@ import shapely
 from shapely.geometry import MultiPolygon, Polygon
 
 from swarmctl.errors import InputError
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_MARGIN, METRES_PER_LEVEL, UNKNOWN_RULES
 from swarmctl.geo.readers import geojson_polygons, polygonal_part, read_json
 
-METRES_PER_LEVEL = 4.0
 FEET = 0.3048
 HEIGHT_KEYS = ("height", "building:height", "HEIGHT")
 LEVEL_KEYS = ("building:levels", "levels", "stories", "STORIES", "NO_STORIES")
 ROOF_LEVEL_KEYS = ("roof:levels",)
-UNKNOWN_RULES = ("block", "ignore")
 
 _NUMBER = r"[-+]?\d+(?:[.,]\d+)?"
 _HEIGHT = re.compile(rf"^\s*({_NUMBER})\s*(m|metres?|meters?|ft|feet|'|)\s*(?:({_NUMBER})\s*(?:\"|in))?\s*$", re.I)
@@ -99,9 +98,13 @@ def building_height(props: dict) -> tuple[float | None, str | None]:
 class BuildingRule:
     """When a building is an obstacle: ``height >= altitude - margin``; unknown heights per `unknown`."""
 
-    altitude: float = 40.0
-    margin: float = 0.0
-    unknown: str = "block"
+    altitude: float = DEFAULT_ALTITUDE
+    margin: float = DEFAULT_MARGIN
+    unknown: str = UNKNOWN_RULES[0]
+
+    def __post_init__(self) -> None:
+        if self.unknown not in UNKNOWN_RULES:
+            raise ValueError(f"unknown-height rule {self.unknown!r}: use one of {UNKNOWN_RULES}")
 
     @property
     def threshold(self) -> float:

@@ -7,18 +7,16 @@ from pathlib import Path
 import click
 
 from swarmctl.errors import InputError
-from swarmctl.geo.areas import load_area
-from swarmctl.geo.buildings import UNKNOWN_RULES, BuildingRule, load_buildings
-from swarmctl.geo.export import write_grid_geojson
-from swarmctl.geo.grid import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MAX_CELLS, GeoGrid, GridReport, make_grid
-from swarmctl.geo.plan_io import write_plan
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MARGIN, DEFAULT_MAX_CELLS, UNKNOWN_RULES
+
+# shapely, pyproj, scipy and matplotlib load inside the command, so other commands start fast.
 
 
 def _warn(message: str) -> None:
     click.echo(f"swarmctl: warning: {message}", err=True)
 
 
-def summary_lines(grid: GeoGrid, report: GridReport, with_buildings: bool) -> list[str]:
+def summary_lines(grid, report, with_buildings: bool) -> list[str]:
     """The human summary `plan` prints: grid size, blocked fraction, buildings, free regions."""
     n = grid.width * grid.height
     lines = [
@@ -48,10 +46,10 @@ def summary_lines(grid: GeoGrid, report: GridReport, with_buildings: bool) -> li
 @click.option("--cell", type=float, default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
 @click.option("--altitude", type=float, default=DEFAULT_ALTITUDE, show_default=True,
               help="Flight altitude in metres relative to home.")
-@click.option("--margin", type=float, default=0.0, show_default=True,
+@click.option("--margin", type=float, default=DEFAULT_MARGIN, show_default=True,
               help="Safety margin in metres: buildings >= altitude - margin are obstacles.")
 @click.option("--rotate", is_flag=True, help="Align the grid with the area's main axis.")
-@click.option("--unknown-height", type=click.Choice(UNKNOWN_RULES), default="block", show_default=True,
+@click.option("--unknown-height", type=click.Choice(UNKNOWN_RULES), default=UNKNOWN_RULES[0], show_default=True,
               help="Buildings with no height: obstacles (block) or ignored.")
 @click.option("--max-cells", type=int, default=DEFAULT_MAX_CELLS, show_default=True,
               help="Refuse grids with more cells than this.")
@@ -71,6 +69,13 @@ def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude:
         raise InputError(f"--margin {margin:g}: the safety margin must be >= 0 and below --altitude ({altitude:g} m)")
     if max_cells < 1:
         raise InputError(f"--max-cells {max_cells}: must be at least 1")
+    from swarmctl.geo.areas import load_area
+    from swarmctl.geo.buildings import BuildingRule, load_buildings
+    from swarmctl.geo.export import write_grid_geojson
+    from swarmctl.geo.grid import make_grid
+    from swarmctl.geo.plan_io import write_plan
+    from swarmctl.geo.preview import render_preview
+
     the_area = load_area(area)
     for message in the_area.warnings:
         _warn(message)
@@ -84,8 +89,6 @@ def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude:
             f"{area}: every cell of the {grid.width} x {grid.height} grid is blocked; use a smaller --cell"
             + (", --unknown-height ignore or a higher --altitude" if bset is not None else "")
         )
-    from swarmctl.geo.preview import render_preview  # matplotlib is slow to import
-
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         written = [grid.save(out_dir / "grid.npz"), write_grid_geojson(grid, out_dir / "grid.geojson"),

@@ -29,14 +29,12 @@ from shapely import affinity
 
 from swarmctl.errors import InputError
 from swarmctl.geo.areas import Area
-from swarmctl.geo.buildings import METRES_PER_LEVEL, BuildingRule, BuildingSet
+from swarmctl.geo.buildings import BuildingRule, BuildingSet
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MAX_CELLS, METRES_PER_LEVEL
 from swarmctl.geo.projection import LocalProjection
 
 GRID_FORMAT = "swarmctl-grid"
 GRID_VERSION = 1
-DEFAULT_CELL = 10.0
-DEFAULT_ALTITUDE = 40.0
-DEFAULT_MAX_CELLS = 250_000
 EXTENT_TOLERANCE = 1e-3  # cells: a bounding box this much over a whole number of cells is not widened
 OVERLAP_EPS = 1e-6  # cell areas: a building overlapping a cell by less only touches it
 CIRCLE_SEGMENTS = 32
@@ -348,6 +346,11 @@ def _building_cells(grid: GeoGrid, proj: LocalProjection, area: Area, bset: Buil
     report.unknown_height = int((inside & unknown).sum())
     report.buildings_blocking = int((inside & blocks).sum())
     report.buildings_low = int((inside & ~blocks & ~unknown).sum())
+    if report.buildings_used == 0:
+        report.warnings.append(
+            f"{bset.name}: none of its {len(feet)} buildings lies in the area {area.name}; check that the "
+            "file covers the area and stores [lon, lat] positions"
+        )
     mask = np.zeros_like(grid.blocked)
     chosen = feet[inside & blocks]
     if len(chosen) == 0:
