@@ -159,6 +159,10 @@ def test_plan_inclusion_circle_is_area(tmp_path):
     ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4]}}]}}, "radius"),
     ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": -1}}]}},
      "must be > 0"),
+    ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": 1e308}}]}},
+     "below 1000 km"),
+    ({"fileType": "Plan", "geoFence": {"polygons": True}}, "\"polygons\" must be a list"),
+    ({"fileType": "Plan", "mission": {"items": 3}}, "\"items\" must be a list"),
 ])
 def test_plan_errors(tmp_path, plan, message):
     path = tmp_path / "bad.plan"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import shapely
@@ -126,12 +128,12 @@ def test_bad_grid_files_raise_input_error(tmp_path):
     np.savez(other, blocked=np.zeros((2, 2), bool), meta=np.array('{"format": "something-else"}'))
     bad_shape = tmp_path / "bad_shape.npz"
     meta = dict(grid.meta(), width=7)
-    import json
-
     np.savez(bad_shape, blocked=grid.blocked, meta=np.array(json.dumps(meta)))
     bad_cell = tmp_path / "bad_cell.npz"
     np.savez(bad_cell, blocked=grid.blocked, meta=np.array(json.dumps(dict(grid.meta(), cell_size_m=0))))
-    for path in (tmp_path / "missing.npz", garbage, truncated, other, bad_shape, bad_cell):
+    bad_proj = tmp_path / "bad_proj.npz"
+    np.savez(bad_proj, blocked=grid.blocked, meta=np.array(json.dumps(dict(grid.meta(), proj="+proj=nothing"))))
+    for path in (tmp_path / "missing.npz", garbage, truncated, other, bad_shape, bad_cell, bad_proj):
         with pytest.raises(InputError, match=path.name):
             GeoGrid.load(path)
 

@@ -26,6 +26,7 @@ from swarmctl.geo.projection import LocalProjection
 from swarmctl.geo.readers import lonlat_ring, make_polygon, read_json
 
 CIRCLE_SEGMENTS = 32  # per quarter circle when a circle becomes a polygon
+MAX_RADIUS = 1e6  # metres
 
 
 def circle_polygon(circle: Circle) -> Polygon:
@@ -39,6 +40,16 @@ def _ring(coords: object, path: Path, where: str) -> np.ndarray:
     if not isinstance(coords, list):
         raise InputError(f"{path}: {where}: \"polygon\" must be a list of [lat, lon] positions; fix the plan")
     return lonlat_ring(coords, path, where, lat_first=True)
+
+
+def _items(parent: dict, key: str, path: Path, where: str) -> list:
+    """parent[key] as a list (missing or null: empty); anything else is an InputError."""
+    value = parent.get(key)
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise InputError(f"{path}: {where} \"{key}\" must be a list; fix the plan")
+    return value
 
 
 def read_plan(path: str | Path) -> Area:
@@ -57,7 +68,7 @@ def read_plan(path: str | Path) -> Area:
     nofly: list[tuple[Polygon, str]] = []
     circles: list[Circle] = []
     counts = {"inclusion fence(s)": 0, "survey polygon(s)": 0, "inclusion circle(s)": 0}
-    for i, item in enumerate(fence.get("polygons") or []):
+    for i, item in enumerate(_items(fence, "polygons", path, "geoFence")):
         where = f"geoFence polygon {i}"
         if not isinstance(item, dict):
             raise InputError(f"{path}: {where}: not a JSON object; fix the plan")
@@ -67,7 +78,7 @@ def read_plan(path: str | Path) -> Area:
             counts["inclusion fence(s)"] += 1
         else:
             nofly.append((poly, where))
-    for i, item in enumerate(fence.get("circles") or []):
+    for i, item in enumerate(_items(fence, "circles", path, "geoFence")):
         where = f"geoFence circle {i}"
         try:
             lat, lon = (float(v) for v in item["circle"]["center"][:2])
@@ -77,15 +88,15 @@ def read_plan(path: str | Path) -> Area:
                 f"{path}: {where}: needs \"circle\": {{\"center\": [lat, lon], \"radius\": metres}}; fix the plan"
             ) from None
         lonlat_ring([[lat, lon]], path, where, lat_first=True)
-        if not radius > 0:
-            raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0; fix the plan")
+        if not 0 < radius < MAX_RADIUS:
+            raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0 and below 1000 km; fix the plan")
         circle = Circle(lat, lon, radius)
         if item.get("inclusion", False):
             area.append((circle_polygon(circle), where))
             counts["inclusion circle(s)"] += 1
         else:
             circles.append(circle)
-    for i, item in enumerate(mission.get("items") or []):
+    for i, item in enumerate(_items(mission, "items", path, "mission")):
         if isinstance(item, dict) and item.get("complexItemType") == "survey":
             where = f"mission item {i} (survey)"
             area.append((make_polygon(_ring(item.get("polygon"), path, where), [], path, where), where))
