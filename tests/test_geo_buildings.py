@@ -72,7 +72,8 @@ def tiny(tmp_path):
 
 
 def run(area, bset, **rule):
-    return make_grid(area, cell=10.0, buildings=bset, rule=BuildingRule(**rule))
+    rule = BuildingRule(**rule)
+    return make_grid(area, cell=10.0, altitude=rule.altitude, buildings=bset, rule=rule)
 
 
 def test_footprint_blocks_every_cell_it_overlaps(tiny):
@@ -97,7 +98,7 @@ def test_low_buildings_do_not_block_and_levels_count(tiny):
     )
     grid, report = run(area, bset)
     assert blocked_cells(grid) == {(2, 0), (4, 2)}
-    assert (report.buildings_blocking, report.buildings_low) == (2, 2)
+    assert (report.buildings_blocking, report.buildings_tall, report.buildings_low) == (2, 2, 2)
 
 
 def test_margin_makes_lower_buildings_block(tiny):
@@ -113,7 +114,7 @@ def test_unknown_height_rule(tiny):
     bset = buildings(((1.2, 1.2, 1.8, 1.8), {"name": "no tags"}), ((3.2, 3.2, 3.8, 3.8), {"STORIES": 0}))
     grid, report = run(area, bset, unknown="block")
     assert blocked_cells(grid) == {(1, 1), (3, 3)}
-    assert report.unknown_height == 2
+    assert (report.unknown_height, report.buildings_blocking, report.buildings_tall) == (2, 2, 0)
     grid, report = run(area, bset, unknown="ignore")
     assert blocked_cells(grid) == set()
     assert report.unknown_height == 2 and report.buildings_blocking == 0

@@ -41,7 +41,7 @@ def test_plan_writes_grid_geojson_plan_and_preview(tmp_path, area_file, capsys):
     assert rc == 0, err
     assert "grid: 20 x 10 = 200 cells of 10 m" in out
     assert "blocked: 1 cells (0.5 %)" in out
-    assert "3 in file, 2 used (1 obstacles, 1 below the threshold, 0 of unknown height, blocked), " \
+    assert "3 in file, 2 in the area: 1 >= 40 m (obstacles), 1 below 40 m, 0 of unknown height (obstacles); " \
            "1 outside the area ignored" in out
     assert "largest connected free region: 199 cells" in out
     assert err == ""

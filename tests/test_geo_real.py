@@ -41,10 +41,10 @@ def test_loop_with_building_sample(tmp_path, capsys):
     rc, out, err = plan(capsys, DATA / "chicago_loop_neighborhood.geojson", "--buildings", SAMPLE,
                         "--cell", "20", "--rotate", "--out", tmp_path)
     assert rc == 0, err
-    assert "10 in file, 10 used (10 obstacles, 0 below the threshold, 3 of unknown height, blocked)" in out
+    assert "10 in file, 10 in the area: 7 >= 40 m (obstacles), 0 below 40 m, 3 of unknown height (obstacles)" in out
     rc, out, _ = plan(capsys, DATA / "chicago_loop_neighborhood.geojson", "--buildings", SAMPLE,
                       "--cell", "20", "--unknown-height", "ignore", "--out", tmp_path / "ignore")
-    assert "(7 obstacles, 0 below the threshold, 3 of unknown height, ignored)" in out
+    assert "7 >= 40 m (obstacles), 0 below 40 m, 3 of unknown height (ignored)" in out
 
 
 def test_helsinki_levels_and_unknown_heights(tmp_path, capsys):
@@ -55,11 +55,11 @@ def test_helsinki_levels_and_unknown_heights(tmp_path, capsys):
                         "--cell", "20", "--out", tmp_path / "block")
     assert rc == 0, err
     # 154 footprints have a height or a level count, 292 neither.
-    assert "buildings: 446 in file, 446 used (297 obstacles, 149 below the threshold, 292 of unknown height" in out
+    assert "buildings: 446 in file, 446 in the area: 5 >= 40 m (obstacles), 149 below 40 m, 292 of unknown height" in out
     rc, out, err = plan(capsys, square, "--buildings", DATA / "helsinki_centre_osm_buildings.geojson",
                         "--cell", "20", "--unknown-height", "ignore", "--altitude", "30", "--out", tmp_path / "ign")
     assert rc == 0, err
-    blocking = int(out.split("used (")[1].split(" obstacles")[0])
+    blocking = int(out.split("in the area: ")[1].split(" >= 30 m")[0])
     assert blocking > 2  # at 30 m, the buildings of 8+ levels (4 m each) block too
 
 

@@ -26,11 +26,13 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
         f"{report.outside}, no-fly {report.nofly}, buildings {report.buildings}",
     ]
     if with_buildings:
-        unknown = "blocked" if report.unknown_rule == "block" else "ignored"
+        unknown = "obstacles" if report.unknown_rule == "block" else "ignored"
+        threshold = f"{report.threshold:g} m"
         lines.append(
-            f"buildings: {report.buildings_total} in file, {report.buildings_used} used "
-            f"({report.buildings_blocking} obstacles, {report.buildings_low} below the threshold, "
-            f"{report.unknown_height} of unknown height, {unknown}), {report.buildings_outside} outside the area ignored"
+            f"buildings: {report.buildings_total} in file, {report.buildings_used} in the area: "
+            f"{report.buildings_tall} >= {threshold} (obstacles), {report.buildings_low} below {threshold}, "
+            f"{report.unknown_height} of unknown height ({unknown}); "
+            f"{report.buildings_outside} outside the area ignored"
         )
     _, regions = grid.free_regions()
     largest = int(grid.largest_free_region().sum())

@@ -253,10 +253,12 @@ class GridReport:
     buildings_total: int = 0
     buildings_used: int = 0
     buildings_outside: int = 0
-    buildings_blocking: int = 0
-    buildings_low: int = 0
+    buildings_blocking: int = 0  # obstacles: tall ones, and unknown ones under the "block" rule
+    buildings_tall: int = 0  # height known and >= threshold
+    buildings_low: int = 0  # height known and below the threshold
     unknown_height: int = 0
     unknown_rule: str = "block"
+    threshold: float = DEFAULT_ALTITUDE
     warnings: list[str] = field(default_factory=list)
 
 
@@ -275,6 +277,8 @@ def make_grid(
     if not (math.isfinite(altitude) and altitude > 0):
         raise InputError(f"altitude {altitude!r} m: must be a number > 0, e.g. --altitude 40")
     rule = rule or BuildingRule(altitude=altitude)
+    if rule.altitude != altitude:
+        raise ValueError(f"the building rule's altitude {rule.altitude} differs from the grid's {altitude}")
     proj = LocalProjection.centred_on(area.geometry.bounds)
     outline_m = proj.geometry_to_metres(area.outline)
     rotation = grid_axes(outline_m, rotate)
@@ -293,7 +297,7 @@ def make_grid(
     origin = (math.cos(a) * u0 - math.sin(a) * v0, math.sin(a) * u0 + math.cos(a) * v0)
     grid = GeoGrid(proj.proj, origin, rotation, float(cell), np.zeros((w, h), bool), float(altitude),
                    area_name=area.name, area_wkt=area.geometry.wkt)
-    report = GridReport(unknown_rule=rule.unknown)
+    report = GridReport(unknown_rule=rule.unknown, threshold=rule.threshold)
 
     cx, cy = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5, indexing="ij")
     outside = ~shapely.contains_xy(grid.geometry_to_grid(outline_m), cx, cy)
@@ -346,6 +350,7 @@ def _building_cells(grid: GeoGrid, proj: LocalProjection, area: Area, bset: Buil
     report.unknown_height = int((inside & unknown).sum())
     report.buildings_blocking = int((inside & blocks).sum())
     report.buildings_low = int((inside & ~blocks & ~unknown).sum())
+    report.buildings_tall = int((inside & blocks & ~unknown).sum())
     if report.buildings_used == 0:
         report.warnings.append(
             f"{bset.name}: none of its {len(feet)} buildings lies in the area {area.name}; check that the "
