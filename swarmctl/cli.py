@@ -15,12 +15,12 @@ def cli() -> None:
     """Drone-swarm search: simulate, train, plan over real areas, fly over MAVLink."""
 
 
-from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 from swarmctl.bench import bench_command  # noqa: E402
+from swarmctl.geo.cli import plan_command  # noqa: E402
+from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 
-cli.add_command(eval_command)
-cli.add_command(train_command)
-cli.add_command(bench_command)
+for command in (eval_command, train_command, bench_command, plan_command):
+    cli.add_command(command)
 
 
 def main(argv: list[str] | None = None) -> int:

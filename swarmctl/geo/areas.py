@@ -1,0 +1,201 @@
+"""Search areas from GeoJSON, KML and QGroundControl .plan files.
+
+An `Area` is the polygon(s) to search, in WGS84 lon/lat, plus its no-fly zones. Sources:
+
+- GeoJSON (RFC 7946, lon/lat): Polygon, MultiPolygon, Feature, FeatureCollection, GeometryCollection.
+  Every polygon is part of the area, except features whose properties set ``"nofly": true``
+  (also ``"no_fly"`` / ``"no-fly"``), which are no-fly zones.
+- KML: every ``<Polygon>`` (outer and inner boundaries), in ``<MultiGeometry>`` too. A Placemark
+  whose ``<name>`` starts with "no-fly"/"nofly" (any case) is a no-fly zone.
+- QGroundControl .plan: see `swarmctl.geo.plan_io.read_plan`.
+
+Polygon holes are no-fly zones. Invalid (self-intersecting) polygons are repaired with
+``shapely.make_valid`` and reported in `Area.warnings`.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import shapely
+from shapely.geometry import MultiPolygon, Polygon
+
+from swarmctl.errors import InputError
+from swarmctl.geo.readers import (
+    geojson_polygons,
+    lonlat_ring,
+    make_polygon,
+    polygonal_part,
+    read_json,
+    repair,
+    require_file,
+)
+
+AREA_SUFFIXES = (".geojson", ".json", ".kml", ".plan")
+NOFLY_KEYS = ("nofly", "no_fly", "no-fly")
+BUILDING_KEYS = ("building", "height", "building:levels", "stories", "STORIES", "BLDG_ID")
+_NOFLY_NAME = re.compile(r"^\s*no[-_ ]?fly", re.IGNORECASE)
+
+
+@dataclass(frozen=True)
+class Circle:
+    """A circular zone: centre latitude/longitude in degrees, radius in metres."""
+
+    lat: float
+    lon: float
+    radius: float
+
+
+@dataclass
+class Area:
+    """A search area in WGS84 lon/lat.
+
+    `geometry` is a Polygon or MultiPolygon (holes kept: they are no-fly); `nofly` holds the other
+    no-fly polygons, `nofly_circles` the circular ones (radius in metres, so they are only turned
+    into polygons in a metric frame). `name` is the source file name.
+    """
+
+    geometry: Polygon | MultiPolygon
+    nofly: list[Polygon] = field(default_factory=list)
+    nofly_circles: list[Circle] = field(default_factory=list)
+    name: str = "area"
+    sources: dict[str, int] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def polygons(self) -> list[Polygon]:
+        """The area's polygons, holes included."""
+        return list(shapely.get_parts(self.geometry))
+
+    @property
+    def holes(self) -> list[Polygon]:
+        """The holes of the area's polygons, as polygons."""
+        return [Polygon(ring) for p in self.polygons for ring in p.interiors]
+
+    @functools.cached_property
+    def outline(self) -> Polygon | MultiPolygon:
+        """The area with its holes filled (holes are counted as no-fly instead)."""
+        return shapely.union_all([Polygon(p.exterior) for p in self.polygons])
+
+    def describe(self) -> str:
+        """One line: what the area is made of."""
+        parts = [f"{len(self.polygons)} polygon(s)"]
+        for label, n in (("hole(s)", len(self.holes)), ("no-fly polygon(s)", len(self.nofly)),
+                         ("no-fly circle(s)", len(self.nofly_circles))):
+            if n:
+                parts.append(f"{n} {label}")
+        if self.sources:
+            parts.append("from " + ", ".join(f"{n} {k}" for k, n in self.sources.items()))
+        return ", ".join(parts)
+
+
+def build_area(
+    area_parts: list[tuple[Polygon, str]],
+    nofly_parts: list[tuple[Polygon, str]],
+    path: Path,
+    circles: list[Circle] | None = None,
+    sources: dict[str, int] | None = None,
+) -> Area:
+    """Repair the polygons read from `path` and assemble an Area; no polygon left -> InputError."""
+    warnings: list[str] = []
+    polys = repair(area_parts, path, warnings)
+    if not polys:
+        raise InputError(
+            f"{path}: contains no area polygon; give a file with a Polygon or MultiPolygon "
+            "(GeoJSON), a <Polygon> (KML) or an inclusion geofence or survey polygon (.plan)"
+        )
+    geometry = polygonal_part(shapely.union_all(polys))
+    nofly = repair(nofly_parts, path, warnings)
+    return Area(geometry, nofly, list(circles or []), path.name, dict(sources or {}), warnings)
+
+
+def load_area(path: str | Path) -> Area:
+    """Read a search area from a .geojson/.json, .kml or QGroundControl .plan file."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in AREA_SUFFIXES:
+        raise InputError(
+            f"{path}: unknown file type {suffix or '(no extension)'!r}; give a "
+            + ", ".join(AREA_SUFFIXES) + " file"
+        )
+    if suffix == ".kml":
+        return read_kml(path)
+    if suffix == ".plan":
+        from swarmctl.geo.plan_io import read_plan
+
+        return read_plan(path)
+    return read_geojson_area(path)
+
+
+def _is_nofly(props: dict) -> bool:
+    for key in NOFLY_KEYS:
+        value = props.get(key)
+        if value is True or (isinstance(value, str) and value.strip().lower() in ("true", "yes", "1")):
+            return True
+    return False
+
+
+def read_geojson_area(path: Path) -> Area:
+    """Read an Area from GeoJSON (see the module docstring for no-fly features)."""
+    obj = read_json(path, "GeoJSON")
+    area, nofly, tagged = [], [], 0
+    for poly, props, where, _ in geojson_polygons(obj, path):
+        (nofly if _is_nofly(props) else area).append((poly, where))
+        tagged += any(props.get(k) not in (None, "") for k in BUILDING_KEYS)
+    result = build_area(area, nofly, path, sources={"GeoJSON polygon(s)": len(area)} if area else None)
+    if len(area) > 1 and tagged > len(area) / 2:
+        result.warnings.append(
+            f"{path}: {tagged} of its {len(area)} polygons carry building tags, and the area is their union; "
+            "to fly around buildings, give an area file and pass this one as --buildings"
+        )
+    return result
+
+
+def _local(tag: str) -> str:
+    return tag.rsplit("}", 1)[-1]
+
+
+def _kml_ring(elem: ET.Element, path: Path, where: str):
+    text = next((e.text for e in elem.iter() if _local(e.tag) == "coordinates"), None)
+    if not text or not text.strip():
+        raise InputError(f"{path}: {where}: boundary without <coordinates>; fix the KML")
+    try:
+        points = [tuple(float(v) for v in tok.split(",")) for tok in text.split()]
+    except ValueError:
+        raise InputError(
+            f"{path}: {where}: <coordinates> must be 'lon,lat[,alt]' tuples separated by spaces; fix the KML"
+        ) from None
+    return lonlat_ring(points, path, where)
+
+
+def read_kml(path: Path) -> Area:
+    """Read an Area from a KML file: every <Polygon>, with outer and inner boundaries."""
+    require_file(path)
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise InputError(f"{path}: not valid KML/XML ({exc}); fix the file or export it again as KML") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror}); check the file's permissions") from None
+    placemarks = [e for e in root.iter() if _local(e.tag) == "Placemark"] or [root]
+    area, nofly = [], []
+    for pi, pm in enumerate(placemarks):
+        name = next((e.text or "" for e in pm if _local(e.tag) == "name"), "")
+        target = nofly if _NOFLY_NAME.match(name) else area
+        for gi, poly in enumerate(e for e in pm.iter() if _local(e.tag) == "Polygon"):
+            where = f"Placemark {pi} ({name.strip() or 'unnamed'}) polygon {gi}"
+            outer = [e for e in poly if _local(e.tag) == "outerBoundaryIs"]
+            if not outer:
+                raise InputError(f"{path}: {where}: <Polygon> without <outerBoundaryIs>; fix the KML")
+            shell = _kml_ring(outer[0], path, where)
+            holes = [
+                _kml_ring(ring, path, f"{where} inner boundary")
+                for inner in poly if _local(inner.tag) == "innerBoundaryIs"
+                for ring in inner.iter() if _local(ring.tag) == "LinearRing"
+            ]
+            target.append((make_polygon(shell, holes, path, where), where))
+    return build_area(area, nofly, path, sources={"KML polygon(s)": len(area)} if area else None)

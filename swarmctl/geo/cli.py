@@ -1,0 +1,112 @@
+"""`swarmctl plan`: a real area (and buildings) to a grid, its GeoJSON, a QGC plan and a preview."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from swarmctl.errors import InputError
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MARGIN, DEFAULT_MAX_CELLS, UNKNOWN_RULES
+
+# shapely, pyproj, scipy and matplotlib load inside the command, so other commands start fast.
+
+
+def _warn(message: str) -> None:
+    click.echo(f"swarmctl: warning: {message}", err=True)
+
+
+def summary_lines(grid, report, with_buildings: bool) -> list[str]:
+    """The human summary `plan` prints: grid size, blocked fraction, buildings, free regions."""
+    n = grid.width * grid.height
+    lines = [
+        f"grid: {grid.width} x {grid.height} = {n} cells of {grid.cell:g} m, rotation {grid.rotation:.2f} deg, "
+        f"altitude {grid.altitude:g} m",
+        f"blocked: {int(grid.blocked.sum())} cells ({100 * grid.blocked_fraction:.1f} %): outside the area "
+        f"{report.outside}, no-fly {report.nofly}, buildings {report.buildings}",
+    ]
+    if with_buildings:
+        unknown = "obstacles" if report.unknown_rule == "block" else "ignored"
+        threshold = f"{report.threshold:g} m"
+        lines.append(
+            f"buildings: {report.buildings_total} in file, {report.buildings_used} in the area: "
+            f"{report.buildings_tall} >= {threshold} (obstacles), {report.buildings_low} below {threshold}, "
+            f"{report.unknown_height} of unknown height ({unknown}); "
+            f"{report.buildings_outside} outside the area ignored"
+        )
+    _, regions = grid.free_regions()
+    largest = int(grid.largest_free_region().sum())
+    lines.append(f"largest connected free region: {largest} cells ({100 * largest / n:.1f} % of the grid, "
+                 f"{regions} free region(s) in all)")
+    return lines
+
+
+@click.command("plan")
+@click.argument("area", type=click.Path(path_type=Path))
+@click.option("--buildings", "buildings_file", type=click.Path(path_type=Path), default=None,
+              help="GeoJSON building footprints with height or levels.")
+@click.option("--cell", type=float, default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
+@click.option("--altitude", type=float, default=DEFAULT_ALTITUDE, show_default=True,
+              help="Flight altitude in metres relative to home.")
+@click.option("--margin", type=float, default=DEFAULT_MARGIN, show_default=True,
+              help="Safety margin in metres: buildings >= altitude - margin are obstacles.")
+@click.option("--rotate", is_flag=True, help="Align the grid with the area's main axis.")
+@click.option("--unknown-height", type=click.Choice(UNKNOWN_RULES), default=UNKNOWN_RULES[0], show_default=True,
+              help="Buildings with no height: obstacles (block) or ignored.")
+@click.option("--max-cells", type=int, default=DEFAULT_MAX_CELLS, show_default=True,
+              help="Refuse grids with more cells than this.")
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output folder.")
+def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude: float, margin: float,
+                 rotate: bool, unknown_height: str, max_cells: int, out_dir: Path) -> None:
+    """Turn a search AREA (GeoJSON, KML or QGroundControl .plan) into a cell grid.
+
+    Writes OUT/grid.npz (the grid the controller loads), OUT/grid.geojson (cells with a blocked
+    flag), OUT/area.plan (QGroundControl geofence) and OUT/preview.png.
+    """
+    if not cell > 0:
+        raise InputError(f"--cell {cell:g}: the cell size must be > 0 metres, e.g. --cell 10")
+    if not altitude > 0:
+        raise InputError(f"--altitude {altitude:g}: the flight altitude must be > 0 metres, e.g. --altitude 40")
+    if not 0 <= margin < altitude:
+        raise InputError(f"--margin {margin:g}: the safety margin must be >= 0 and below --altitude ({altitude:g} m)")
+    if max_cells < 1:
+        raise InputError(f"--max-cells {max_cells}: must be at least 1")
+    from swarmctl.geo.areas import load_area
+    from swarmctl.geo.buildings import BuildingRule, load_buildings
+    from swarmctl.geo.export import write_grid_geojson
+    from swarmctl.geo.grid import make_grid
+    from swarmctl.geo.plan_io import write_plan
+    from swarmctl.geo.preview import render_preview
+
+    the_area = load_area(area)
+    for message in the_area.warnings:
+        _warn(message)
+    bset = load_buildings(buildings_file) if buildings_file is not None else None
+    rule = BuildingRule(altitude=altitude, margin=margin, unknown=unknown_height)
+    grid, report = make_grid(the_area, cell, altitude, rotate, bset, rule, max_cells)
+    for message in report.warnings:
+        _warn(message)
+    if grid.blocked.all():
+        raise InputError(
+            f"{area}: every cell of the {grid.width} x {grid.height} grid is blocked; use a smaller --cell"
+            + (", --unknown-height ignore or a higher --altitude" if bset is not None else "")
+        )
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = [grid.save(out_dir / "grid.npz"), write_grid_geojson(grid, out_dir / "grid.geojson"),
+                   write_plan(the_area, out_dir / "area.plan"),
+                   render_preview(grid, the_area, out_dir / "preview.png", bset, rule)]
+    except OSError as exc:
+        raise InputError(
+            f"{exc.filename or out_dir}: cannot write the output ({exc.strerror}); choose another --out"
+        ) from None
+    click.echo(f"area: {area} ({the_area.describe()})")
+    click.echo(f"projection: {grid.proj}")
+    for line in summary_lines(grid, report, bset is not None):
+        click.echo(line)
+    free = int((~grid.blocked).sum())
+    unreachable = free - int(grid.largest_free_region().sum())
+    if unreachable:
+        _warn(f"{unreachable} free cell(s) ({100 * unreachable / free:.1f} % of the free cells) cannot be reached "
+              "from the largest free region; vehicles starting there stay cut off")
+    click.echo("wrote: " + ", ".join(str(p) for p in written))

@@ -1,0 +1,8 @@
+"""Default values of the geo package, kept free of heavy imports so that the CLI loads fast."""
+
+DEFAULT_CELL = 10.0  # metres
+DEFAULT_ALTITUDE = 40.0  # metres relative to home (the paper's hover altitude)
+DEFAULT_MARGIN = 0.0  # metres
+DEFAULT_MAX_CELLS = 250_000
+METRES_PER_LEVEL = 4.0  # the paper: 10 stories ~ 40 m
+UNKNOWN_RULES = ("block", "ignore")  # buildings without a height; the first is the default

@@ -1,0 +1,146 @@
+"""QGroundControl .plan files (JSON, fileType "Plan", version 1) in and out.
+
+Reading (`read_plan`): geofence polygons with ``"inclusion": true`` and survey ComplexItem polygons
+make up the area (their union); geofence polygons with ``"inclusion": false`` are no-fly zones;
+geofence circles are no-fly zones when ``"inclusion": false`` and part of the area when true. Plans
+store positions as [lat, lon(, alt)].
+
+Writing (`write_plan`): the area's outer rings become inclusion polygons, its holes and no-fly
+polygons exclusion polygons, its no-fly circles exclusion circles, with an empty mission (home at
+a point inside the area, altitudes relative to home) and no rally points, as QGroundControl
+itself writes them.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon
+
+from swarmctl.errors import InputError
+from swarmctl.geo.areas import Area, Circle, build_area
+from swarmctl.geo.projection import LocalProjection
+from swarmctl.geo.readers import lonlat_ring, make_polygon, read_json
+
+CIRCLE_SEGMENTS = 32  # per quarter circle when a circle becomes a polygon
+MAX_RADIUS = 1e6  # metres
+
+
+def circle_polygon(circle: Circle) -> Polygon:
+    """A circle (radius in metres) as a lon/lat polygon, built in a frame centred on it."""
+    proj = LocalProjection.centred_on((circle.lon, circle.lat, circle.lon, circle.lat))
+    disc = shapely.Point(*proj.to_metres(circle.lon, circle.lat)).buffer(circle.radius, CIRCLE_SEGMENTS)
+    return proj.geometry_to_lonlat(disc)
+
+
+def _ring(coords: object, path: Path, where: str) -> np.ndarray:
+    if not isinstance(coords, list):
+        raise InputError(f"{path}: {where}: \"polygon\" must be a list of [lat, lon] positions; fix the plan")
+    return lonlat_ring(coords, path, where, lat_first=True)
+
+
+def _items(parent: dict, key: str, path: Path, where: str) -> list:
+    """parent[key] as a list (missing or null: empty); anything else is an InputError."""
+    value = parent.get(key)
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise InputError(f"{path}: {where} \"{key}\" must be a list; fix the plan")
+    return value
+
+
+def read_plan(path: str | Path) -> Area:
+    """Read the area and no-fly zones of a QGroundControl .plan file (see the module docstring)."""
+    path = Path(path)
+    obj = read_json(path, "QGroundControl plan")
+    if not isinstance(obj, dict) or obj.get("fileType") != "Plan":
+        raise InputError(
+            f"{path}: not a QGroundControl plan (fileType is not \"Plan\"); save it from QGroundControl's Plan view"
+        )
+    fence = obj.get("geoFence") or {}
+    mission = obj.get("mission") or {}
+    if not isinstance(fence, dict) or not isinstance(mission, dict):
+        raise InputError(f"{path}: \"geoFence\" and \"mission\" must be JSON objects; fix the plan")
+    area: list[tuple[Polygon, str]] = []
+    nofly: list[tuple[Polygon, str]] = []
+    circles: list[Circle] = []
+    counts = {"inclusion fence(s)": 0, "survey polygon(s)": 0, "inclusion circle(s)": 0}
+    for i, item in enumerate(_items(fence, "polygons", path, "geoFence")):
+        where = f"geoFence polygon {i}"
+        if not isinstance(item, dict):
+            raise InputError(f"{path}: {where}: not a JSON object; fix the plan")
+        poly = make_polygon(_ring(item.get("polygon"), path, where), [], path, where)
+        if item.get("inclusion", True):
+            area.append((poly, where))
+            counts["inclusion fence(s)"] += 1
+        else:
+            nofly.append((poly, where))
+    for i, item in enumerate(_items(fence, "circles", path, "geoFence")):
+        where = f"geoFence circle {i}"
+        try:
+            lat, lon = (float(v) for v in item["circle"]["center"][:2])
+            radius = float(item["circle"]["radius"])
+        except (KeyError, TypeError, ValueError, IndexError):
+            raise InputError(
+                f"{path}: {where}: needs \"circle\": {{\"center\": [lat, lon], \"radius\": metres}}; fix the plan"
+            ) from None
+        lonlat_ring([[lat, lon]], path, where, lat_first=True)
+        if not 0 < radius < MAX_RADIUS:
+            raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0 and below 1000 km; fix the plan")
+        circle = Circle(lat, lon, radius)
+        if item.get("inclusion", False):
+            area.append((circle_polygon(circle), where))
+            counts["inclusion circle(s)"] += 1
+        else:
+            circles.append(circle)
+    for i, item in enumerate(_items(mission, "items", path, "mission")):
+        if isinstance(item, dict) and item.get("complexItemType") == "survey":
+            where = f"mission item {i} (survey)"
+            area.append((make_polygon(_ring(item.get("polygon"), path, where), [], path, where), where))
+            counts["survey polygon(s)"] += 1
+    return build_area(area, nofly, path, circles, {k: n for k, n in counts.items() if n})
+
+
+def _latlon_list(ring) -> list[list[float]]:
+    coords = list(ring.coords)[:-1]  # QGC stores rings open
+    return [[float(lat), float(lon)] for lon, lat in coords]
+
+
+def plan_dict(area: Area) -> dict:
+    """The QGroundControl plan (as a dict) for an area: fences only, empty mission."""
+    polygons = [{"inclusion": True, "polygon": _latlon_list(p.exterior), "version": 1} for p in area.polygons]
+    polygons += [
+        {"inclusion": False, "polygon": _latlon_list(p.exterior), "version": 1} for p in area.holes + area.nofly
+    ]
+    circles = [
+        {"circle": {"center": [c.lat, c.lon], "radius": c.radius}, "inclusion": False, "version": 1}
+        for c in area.nofly_circles
+    ]
+    home = area.geometry.representative_point()
+    return {
+        "fileType": "Plan",
+        "geoFence": {"circles": circles, "polygons": polygons, "version": 2},
+        "groundStation": "QGroundControl",
+        "mission": {
+            "cruiseSpeed": 15,
+            "firmwareType": 0,
+            "globalPlanAltitudeMode": 1,
+            "hoverSpeed": 5,
+            "items": [],
+            "plannedHomePosition": [home.y, home.x, 0],
+            "vehicleType": 2,
+            "version": 2,
+        },
+        "rallyPoints": {"points": [], "version": 2},
+        "version": 1,
+    }
+
+
+def write_plan(area: Area, path: str | Path) -> Path:
+    """Write `area` as a QGroundControl .plan file (see the module docstring); returns the path."""
+    path = Path(path)
+    path.write_text(json.dumps(plan_dict(area), indent=4) + "\n", encoding="utf-8")
+    return path
