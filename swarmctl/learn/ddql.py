@@ -145,6 +145,21 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
                      "eval_success", "eval_mean_steps", "wall_s"])
     evals: list[dict] = []
     episodes_done, joint_steps, samples, updates, update_credit = 0, 0, 0, 0, 0.0
+
+    def save() -> dict:
+        """Write the checkpoint as it stands (at every evaluation and at the end)."""
+        wall = time.time() - start_time
+        metadata = {
+            "scenario": world.scenario, "episodes": episodes_done, "episodes_planned": cfg.episodes, "seed": seed,
+            "git_commit": git_commit(), "wall_time_s": round(wall, 1), "samples": samples,
+            "joint_steps": joint_steps, "updates": updates, "samples_per_s": round(samples / max(wall, 1e-9), 1),
+            "evals": evals, "final_eval": evals[-1] if evals else None, "init": str(init) if init else None,
+            "init_metadata": init_info["metadata"] if init_info else None,
+            "torch": str(torch.__version__), "device": str(dev),
+        }
+        save_checkpoint(out, copy.deepcopy(q_net).cpu(), world.as_dict(), asdict(cfg), metadata)
+        return metadata
+
     recent_loss, recent_success = [], []
     next_eval = cfg.eval_every
     bar = tqdm(total=cfg.episodes, unit="ep", disable=not progress, desc="train")
@@ -201,6 +216,7 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             q_net.train()
             evals.append({"episodes": episodes_done, **eval_row})
             next_eval += cfg.eval_every
+            save()
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
         writer.writerow([episodes_done, joint_steps, samples, updates, f"{mean_loss:.5f}", f"{explore_value:.4f}",
                          f"{np.mean(recent_success):.3f}", eval_row.get("success_rate", ""),
@@ -212,14 +228,6 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
     bar.close()
     metrics_file.close()
 
-    wall = time.time() - start_time
-    metadata = {
-        "scenario": world.scenario, "episodes": cfg.episodes, "seed": seed, "git_commit": git_commit(),
-        "wall_time_s": round(wall, 1), "samples": samples, "joint_steps": joint_steps, "updates": updates,
-        "samples_per_s": round(samples / wall, 1), "evals": evals, "final_eval": evals[-1] if evals else None,
-        "init": str(init) if init else None,
-        "init_metadata": init_info["metadata"] if init_info else None,
-        "torch": str(torch.__version__), "device": str(dev),
-    }
-    save_checkpoint(out, q_net.cpu(), world.as_dict(), asdict(cfg), metadata)
+    q_net.cpu()
+    metadata = save()
     return metadata
