@@ -49,6 +49,30 @@ def la_decision_seconds(depth: int, seconds: float) -> float:
     return elapsed / (calls * env.uavs)
 
 
+def ddql_decision_seconds(batch_episodes: int, seconds: float) -> float:
+    """Time of one DDQL decision per vehicle: observation, forward pass and softmax sampling.
+
+    The weights do not change the cost, so an untrained network of the paper's architecture is timed."""
+    import torch
+
+    from swarmctl.policy.ddql import softmax_sample
+    from swarmctl.policy.qnet import QNetwork
+
+    env = SearchEnv(WorldConfig(), batch=batch_episodes, observations=False)
+    env.reset(seed=0)
+    net = QNetwork(20).eval()
+    rng = np.random.default_rng(0)
+
+    def decide():
+        obs = env.observe()
+        with torch.inference_mode():
+            q = net(torch.from_numpy(obs.reshape(-1, 3, 20, 20))).numpy()
+        return softmax_sample(q, 0.1, rng)
+
+    elapsed, calls = _timed(decide, seconds)
+    return elapsed / (calls * batch_episodes * env.uavs)
+
+
 def run_bench(seconds: float = 2.0) -> dict:
     """All benchmark figures, keys naming their unit."""
     m20 = WorldConfig()
@@ -62,7 +86,10 @@ def run_bench(seconds: float = 2.0) -> dict:
         "env_m50_u10_vehicle_steps_per_s": env_throughput(m50, 64, True, seconds),
         "env_m50_u10_vehicle_steps_per_s_no_obs": env_throughput(m50, 64, False, seconds),
         "la4_decision_ms": 1000.0 * la_decision_seconds(4, seconds),
+        "ddql_decision_ms_batch1": 1000.0 * ddql_decision_seconds(1, seconds),
+        "ddql_decision_ms_per_vehicle_batch256": 1000.0 * ddql_decision_seconds(256, seconds),
     }
+    out["la4_over_ddql_decision_time"] = out["la4_decision_ms"] / out["ddql_decision_ms_batch1"]
     env = SearchEnv(m20, batch=256, stop_at_success=False)
     env.reset(seed=0)
     elapsed, calls = _timed(env.observe, seconds)
@@ -74,7 +101,7 @@ def run_bench(seconds: float = 2.0) -> dict:
 @click.option("--seconds", type=float, default=2.0, show_default=True, help="Time per measurement.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the figures here.")
 def bench_command(seconds, json_path):
-    """Measure environment throughput (M=20 U=2 B=256; M=50 U=10 B=64) and LA(4) decision time."""
+    """Measure environment throughput (M=20 U=2 B=256; M=50 U=10 B=64) and LA(4) and DDQL decision times."""
     results = run_bench(seconds)
     for key, value in results.items():
         if key != "machine":
