@@ -385,6 +385,8 @@ class MockAutopilot:
     def _build(self, msg_id: int) -> Any:
         home_lat, home_lon, home_alt = self.home
         if msg_id == MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            if not self.ready and self.personality == "px4":
+                return None  # PX4 publishes no global position before it has one
             if self.ready:
                 lat, lon = self._reported_latlon()
                 lat_i, lon_i = to_deg_e7(lat), to_deg_e7(lon)
@@ -550,6 +552,10 @@ class MockAutopilot:
             self.send_message(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(),
                                                           MAV.MAV_MISSION_ACCEPTED,
                                                           getattr(msg, "mission_type", 0)))
+        elif mtype == "PING":
+            if msg.target_system == 0:
+                self.send_message(self.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(),
+                                                       msg.get_srcComponent()))
         elif mtype == "TIMESYNC":
             if msg.tc1 == 0:
                 self.send_message(self.mav.timesync_encode(time.monotonic_ns(), msg.ts1))
@@ -621,7 +627,7 @@ class MockAutopilot:
                 return self._set_custom_mode(px4_encode(int(p[1]), int(p[2])))
             return self._set_custom_mode(int(p[1]))
         if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
-            return self._arm(p[0] >= 0.5, int(p[1]) == 21196)
+            return self._arm(p[0] >= 0.5, p[1] == 21196)
         if command == R.MAV_CMD_NAV_TAKEOFF:
             return self._takeoff(p[6])
         if command == R.MAV_CMD_NAV_LAND:
