@@ -123,6 +123,7 @@ class MockAutopilot:
         # observation for tests
         self.received: list[tuple[str, int, int]] = []  # (type, src sysid, command or 0)
         self.commands: list[tuple[int, int]] = []  # (command, result) answered
+        self.ignored = 0  # messages seen that were addressed to another system
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -529,6 +530,7 @@ class MockAutopilot:
         if msg.get_srcSystem() == self.sysid:
             return  # our own echo (several vehicles on one channel)
         if not self._for_me(msg):
+            self.ignored += 1  # addressed to another vehicle on the same channel
             return
         cmd = getattr(msg, "command", 0) if mtype in ("COMMAND_LONG", "COMMAND_INT") else 0
         self.received.append((mtype, msg.get_srcSystem(), cmd))
