@@ -58,6 +58,8 @@ def test_three_ardupilot_and_one_px4_fly_together():
                 results = await asyncio.gather(
                     *(fly_pattern(v, HOME, 10.0 * i) for i, v in enumerate(vehicles)))
                 took = time.monotonic() - start
+                batteries = [v.battery_remaining for v in vehicles]
+                assert all(b is not None and 50 < b < 100 for b in batteries), batteries
                 for mock in mocks:
                     s = mock.state()
                     assert not s.armed and s.rel_alt == 0.0 and s.battery < 100.0
@@ -122,3 +124,35 @@ def test_flight_survives_packet_loss_and_latency():
     misses, stats = run(scenario(), timeout=90)
     assert max(misses) < 0.05
     assert stats.received > 0
+
+
+def test_mock_vehicle_command_runs_a_vehicle_in_its_own_process():
+    """The CLI entry point: `swarmctl mock-vehicle` flown through the link, then stopped."""
+    import subprocess
+    import sys
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "swarmctl.cli", "mock-vehicle", "--sysid", "12",
+                 "--connect", f"udpout:127.0.0.1:{link.local_port}", "--home", ",".join(map(str, HOME)),
+                 "--speedup", "20", "--ready-after", "2", "--duration", "60"],
+                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            try:
+                v = ArduPilotVehicle(link, 12)
+                await v.connect(15)
+                await v.arm_and_takeoff(10.0, timeout=20)
+                await v.land()
+                await v.wait_landed(20)
+                await v.close()
+            finally:
+                proc.terminate()
+                try:
+                    proc.wait(5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait(5)
+            return proc.stderr.read().decode()
+
+    err = run(scenario())
+    assert "mock ardupilot vehicle 12" in err

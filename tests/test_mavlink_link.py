@@ -349,3 +349,23 @@ def test_fresh_ardupilot_mock_sends_only_heartbeats_until_asked():
                 return set(link.peers[1].messages)
 
     assert run(scenario()) <= {"HEARTBEAT", "STATUSTEXT"}
+
+
+def test_bad_bytes_are_counted_and_dropped_without_breaking_the_link():
+    import socket
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")):
+                await link.wait_heartbeat(1, 5)
+                with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                    for junk in (b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00" + bytes(11),
+                                 b"\xfe\x05garbage!", bytes(range(256))):
+                        s.sendto(junk, ("127.0.0.1", link.local_port))
+                await asyncio.sleep(0.3)
+                bad = link.stats.bad_data
+                t = time.monotonic()
+                await link.wait_until(lambda: link.peers[1].last_heartbeat > t, 3, "heartbeat", "v1")
+                return bad
+
+    assert run(scenario()) > 0

@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
-from swarmctl.mavlink.transport import Transport, open_transport
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
 
 log = logging.getLogger(__name__)
 
@@ -94,6 +94,7 @@ class MavlinkLink:
         self._listeners: list[Callable[[Any], None]] = []
         self._link_callbacks: list[Callable[[int, str], None]] = []
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
+        self._bad_logged = -1e9
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -170,11 +171,7 @@ class MavlinkLink:
             if not data:
                 continue
             with self._lock:
-                try:
-                    msgs = self.mav.parse_buffer(data) or []
-                except Exception as exc:  # malformed bytes are counted and dropped, never fatal
-                    log.debug("bad MAVLink bytes on %s: %s", self.endpoint, exc)
-                    msgs = [MAV.MAVLink_bad_data(bytearray(data), str(exc))]
+                msgs = parse_bytes(self.mav, data, self._transport.datagrams)
             if msgs:
                 try:
                     self._loop.call_soon_threadsafe(self._dispatch, msgs)
@@ -187,7 +184,10 @@ class MavlinkLink:
             mtype = msg.get_type()
             if mtype == "BAD_DATA":
                 self.stats.bad_data += 1
-                log.debug("rejected MAVLink data on %s: %s", self.endpoint, getattr(msg, "reason", ""))
+                if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
+                    self._bad_logged = now
+                    log.warning("rejected bad MAVLink data on %s (%d so far): %s", self.endpoint,
+                                self.stats.bad_data, getattr(msg, "reason", ""))
                 continue
             self.stats.received += 1
             src = msg.get_srcSystem()

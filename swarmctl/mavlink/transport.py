@@ -10,12 +10,17 @@ from __future__ import annotations
 import select
 import socket
 import threading
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mav_module
 
 from swarmctl.errors import InputError
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 
 
 class Transport:
+    datagrams = False  # True when every read() returns whole packets (UDP)
+
     def read(self, timeout: float) -> bytes:  # pragma: no cover - interface
         """Bytes received within timeout seconds (b'' if none)."""
         raise NotImplementedError
@@ -28,6 +33,8 @@ class Transport:
 
 
 class UdpTransport(Transport):
+    datagrams = True
+
     def __init__(self, ep: Endpoint):
         self.listen = ep.kind == "udpin"
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -124,6 +131,37 @@ class SerialTransport(Transport):
 
     def close(self) -> None:
         self.port.close()
+
+
+def parse_bytes(mav: Any, data: bytes, datagram: bool) -> list:
+    """Parse received bytes with a pymavlink MAVLink object; never raises.
+
+    Malformed input comes back as BAD_DATA messages. On a datagram link a packet never spans two
+    datagrams, so bytes left over at the end of one (a truncated or bogus packet) are dropped as
+    BAD_DATA instead of being glued to the next datagram, which would swallow valid packets.
+    """
+    try:
+        msgs = mav.parse_buffer(data) or []
+    except Exception as exc:  # pymavlink raises on some malformed input even in robust mode
+        msgs = [_bad_data(mav, bytearray(data), str(exc))]
+        _reset_parser(mav)
+    if datagram and mav.buf_len() > 0:
+        leftover = mav.buf[mav.buf_index:]
+        _reset_parser(mav)
+        msgs.append(_bad_data(mav, bytearray(leftover), "truncated packet at the end of a datagram"))
+    return msgs
+
+
+def _reset_parser(mav: Any) -> None:
+    mav.buf = bytearray()
+    mav.buf_index = 0
+    mav.expected_length = mav_module.HEADER_LEN_V1 + 2
+    mav.have_prefix_error = False
+
+
+def _bad_data(mav: Any, data: bytearray, reason: str) -> Any:
+    mav.total_receive_errors += 1
+    return mav_module.MAVLink_bad_data(data, reason)
 
 
 def open_transport(conn: str | Endpoint) -> Transport:

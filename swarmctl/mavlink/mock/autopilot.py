@@ -33,7 +33,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.mavlink.codec import (COPTER_MODE_NAMES, COPTER_MODES, PX4_MODES, distance_m,
                                     from_deg_e7, ne_m, offset_m, px4_decode, px4_encode, px4_mode_name,
                                     to_deg_e7)
-from swarmctl.mavlink.transport import Transport, open_transport
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
 
 MAV = mavlink2
 log = logging.getLogger(__name__)
@@ -50,6 +50,7 @@ _PX4_DEFAULT_STREAMS = {  # PX4 streams telemetry unasked (ArduPilot sends only 
 }
 _STREAMABLE = {MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, MAV.MAVLINK_MSG_ID_HOME_POSITION,
                MAV.MAVLINK_MSG_ID_SYS_STATUS, MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+               MAV.MAVLINK_MSG_ID_BATTERY_STATUS,
                MAV.MAVLINK_MSG_ID_HEARTBEAT, MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
 
 _PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station touches
@@ -267,7 +268,7 @@ class MockAutopilot:
                 data = b""
             now = time.monotonic()
             if data and now >= self._down_until and self.rng.random() >= self.packet_loss:
-                msgs = self.mav.parse_buffer(data) or []
+                msgs = parse_bytes(self.mav, data, self._transport.datagrams)
                 for msg in msgs:
                     if self.latency > 0:
                         heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))
@@ -411,6 +412,12 @@ class MockAutopilot:
             current = 1500 if self.rel_alt > 0.1 else (100 if self.armed else 50)
             return self.mav.sys_status_encode(_SENSORS, _SENSORS, health, 200, int(volts * 1000),
                                               current, int(self.battery), 0, 0, 0, 0, 0, 0)
+        if msg_id == MAV.MAVLINK_MSG_ID_BATTERY_STATUS:
+            cell_mv = int(1000 * (3.5 + 0.7 * self.battery / 100.0))
+            return self.mav.battery_status_encode(
+                0, MAV.MAV_BATTERY_FUNCTION_ALL, MAV.MAV_BATTERY_TYPE_LIPO, 32767,
+                [cell_mv] * 4 + [65535] * 6, 1500 if self.rel_alt > 0.1 else 50, -1, -1,
+                int(self.battery))
         if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return self.mav.extended_sys_state_encode(MAV.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
         if msg_id == MAV.MAVLINK_MSG_ID_HEARTBEAT:
