@@ -218,8 +218,8 @@ class ArduPilotVehicle(Vehicle):
     @property
     def position(self) -> Position | None:
         m = self._msg("GLOBAL_POSITION_INT")
-        if m is None:
-            return None
+        if m is None or (m.lat == 0 and m.lon == 0):
+            return None  # ArduPilot reports 0,0 until its EKF has an origin
         return Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
 
     @property
