@@ -152,7 +152,8 @@ def test_mock_vehicle_command_runs_a_vehicle_in_its_own_process():
                 except subprocess.TimeoutExpired:
                     proc.kill()
                     proc.wait(5)
-            return proc.stderr.read().decode()
+            with proc.stderr:
+                return proc.stderr.read().decode()
 
     err = run(scenario())
     assert "mock ardupilot vehicle 12" in err

@@ -149,7 +149,7 @@ def test_link_loss_detected_after_3_s_and_recovery():
 
 def test_gcs_failsafe_sends_the_vehicle_home_when_the_controller_goes_silent():
     async def scenario():
-        link, ctx = await one_vehicle(gcs_failsafe_timeout=1.0)
+        link, ctx = await one_vehicle(gcs_failsafe_timeout=2.5)
         with ctx as (m,):
             try:
                 v = ArduPilotVehicle(link, 1)
