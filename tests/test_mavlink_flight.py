@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import time
 
+import pytest
+
 from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
 from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
 from swarmctl.mavlink.codec import distance_m, offset_m
@@ -39,6 +41,7 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_three_ardupilot_and_one_px4_fly_together():
     px4_port = free_udp_port()
 
@@ -108,6 +111,7 @@ def test_position_targets_use_frame_6_and_type_mask_3576():
     assert (msg.lat_int, msg.lon_int) == (round(lat * 1e7), round(lon * 1e7))
 
 
+@pytest.mark.slow
 def test_flight_survives_packet_loss_and_latency():
     loss = 0.15
     async def scenario():
@@ -126,6 +130,7 @@ def test_flight_survives_packet_loss_and_latency():
     assert stats.received > 0
 
 
+@pytest.mark.slow
 def test_mock_vehicle_command_runs_a_vehicle_in_its_own_process():
     """The CLI entry point: `swarmctl mock-vehicle` flown through the link, then stopped."""
     import subprocess

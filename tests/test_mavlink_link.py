@@ -123,6 +123,7 @@ def test_arming_is_retried_while_the_vehicle_is_not_ready():
     assert results[0] == MAV.MAV_RESULT_FAILED and results[-1] == MAV.MAV_RESULT_ACCEPTED
 
 
+@pytest.mark.slow
 def test_link_loss_detected_after_3_s_and_recovery():
     async def scenario():
         link, ctx = await one_vehicle()
@@ -147,6 +148,7 @@ def test_link_loss_detected_after_3_s_and_recovery():
     assert events == ["seen", "lost", "back"]
 
 
+@pytest.mark.slow
 def test_gcs_failsafe_sends_the_vehicle_home_when_the_controller_goes_silent():
     async def scenario():
         link, ctx = await one_vehicle(gcs_failsafe_timeout=2.5)

@@ -29,6 +29,7 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
+@pytest.mark.slow
 def test_px4_arming_retried_then_rtl_and_link_loss_seen_through_mavsdk():
     port = free_udp_port()
 

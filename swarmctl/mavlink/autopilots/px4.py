@@ -165,7 +165,7 @@ class PX4Vehicle(Vehicle):
             result = getattr(exc, "result", None)
             rname = getattr(result, "name", type(exc).__name__)
             if rname == "TIMEOUT":
-                raise CommandTimeout(what, self.name, 1, 0.0) from None
+                raise CommandTimeout(what, self.name, 0, 0.0) from None
             raise CommandRejected(what, self.name, rname, str(exc)) from None
 
     async def wait_ready(self, timeout: float = 60.0) -> None:

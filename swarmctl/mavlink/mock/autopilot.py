@@ -25,6 +25,7 @@ import math
 import random
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -122,8 +123,9 @@ class MockAutopilot:
         self.forced_results: dict[int, int] = {}  # command -> MAV_RESULT to answer with
         self._drop_commands: dict[int, int | None] = {}  # command -> how many to ignore (None: all)
         # observation for tests
-        self.received: list[tuple[str, int, int]] = []  # (type, src sysid, command or 0)
-        self.commands: list[tuple[int, int]] = []  # (command, result) answered
+        # the latest messages addressed to us, (type, src sysid, command or 0), and the answers given
+        self.received: deque[tuple[str, int, int]] = deque(maxlen=10_000)
+        self.commands: deque[tuple[int, int]] = deque(maxlen=10_000)  # (command, MAV_RESULT)
         self.ignored = 0  # messages seen that were addressed to another system
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -498,9 +500,8 @@ class MockAutopilot:
         self.rel_alt = alt if abs(dz_step) >= abs(dz) else self.rel_alt + dz_step
         self.rel_alt = max(0.0, self.rel_alt)
         if dt > 0:
-            sim_dt = dt
-            self.vel = ((n * step / dist / sim_dt) if dist else 0.0,
-                        (e * step / dist / sim_dt) if dist else 0.0, -dz_step / sim_dt)
+            self.vel = ((n * step / dist / dt) if dist else 0.0,
+                        (e * step / dist / dt) if dist else 0.0, -dz_step / dt)
 
     def _failsafe(self, now: float) -> None:
         """GCS failsafe: no controller heartbeat for gcs_failsafe_timeout s -> RTL (or disarm on ground)."""
