@@ -41,5 +41,10 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
+
+cli.add_command(mock_vehicle_command)
+
+
 if __name__ == "__main__":
     sys.exit(main())

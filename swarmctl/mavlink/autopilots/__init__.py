@@ -1,0 +1,1 @@
+"""Per-autopilot drivers behind swarmctl.mavlink.vehicle.Vehicle: ardupilot.py (pymavlink), px4.py (MAVSDK)."""

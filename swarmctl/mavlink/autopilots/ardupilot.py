@@ -1,0 +1,254 @@
+"""ArduPilot Copter over pymavlink: every ArduPilot quirk the controller depends on lives here.
+
+Sequence (as ArduCopter expects it from a GCS or companion computer):
+wait for the pre-arm checks to pass -> GUIDED -> arm -> MAV_CMD_NAV_TAKEOFF to the altitude above home
+-> wait for the altitude -> SET_POSITION_TARGET_GLOBAL_INT (frame GLOBAL_RELATIVE_ALT_INT, position-only
+type_mask 3576) -> LAND or RTL. A fresh ArduPilot link sends only heartbeats, so telemetry is requested
+with MAV_CMD_SET_MESSAGE_INTERVAL, and requested again whenever it stops (e.g. after a reboot).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from typing import Any
+
+from swarmctl.mavlink.codec import COPTER_MODE_NAMES, COPTER_MODES, from_deg_e7, to_deg_e7
+from swarmctl.mavlink.errors import CommandRejected, MavlinkError
+from swarmctl.mavlink.network import MAV, MavlinkLink
+from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle
+
+log = logging.getLogger(__name__)
+
+# Position-only: ignore velocity (bits 3-5), acceleration (6-8), yaw (10) and yaw rate (11).
+TYPE_MASK_POSITION_ONLY = 3576
+PREARM_BIT = MAV.MAV_SYS_STATUS_PREARM_CHECK  # 0x10000000 in SYS_STATUS present/health
+
+# Telemetry the controller needs: message id -> default rate (Hz). EXTENDED_SYS_STATE is optional.
+TELEMETRY = {
+    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: None,  # None: the vehicle's telemetry rate
+    MAV.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
+    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+}
+
+
+class ArduPilotVehicle(Vehicle):
+    """One ArduCopter (sysid) on a MavlinkLink that may carry other vehicles too."""
+
+    autopilot = "ardupilot"
+
+    def __init__(self, link: MavlinkLink, sysid: int, *, name: str | None = None,
+                 telemetry_rate_hz: float = 5.0, command_timeout: float = 1.0, retries: int = 3,
+                 owns_link: bool = False):
+        self.link, self.sysid = link, sysid
+        self.name = name or f"vehicle {sysid}"
+        self.telemetry_rate_hz = telemetry_rate_hz
+        self.command_timeout, self.retries = command_timeout, retries
+        self.owns_link = owns_link
+        self.target: Target | None = None
+        self._target_sent = 0.0
+        self._telemetry_task: asyncio.Task | None = None
+        self._requesting = False
+        self.unsupported: set[int] = set()  # telemetry messages the vehicle said it cannot stream
+
+    @classmethod
+    async def open(cls, connection: str, sysid: int, *, signing_key: bytes | None = None,
+                   **kw: Any) -> "ArduPilotVehicle":
+        """A vehicle on its own link (use MavlinkLink + the constructor to share a link)."""
+        link = await MavlinkLink(connection, signing_key=signing_key).open()
+        return cls(link, sysid, owns_link=True, **kw)
+
+    # --- commands ------------------------------------------------------------------------------------
+
+    async def _command(self, command: int, *params: float, **kw: Any) -> Any:
+        kw.setdefault("timeout", self.command_timeout)
+        kw.setdefault("retries", self.retries)
+        return await self.link.command(self.sysid, command, params, vehicle=self.name, **kw)
+
+    async def connect(self, timeout: float = 15.0) -> None:
+        await self.link.wait_heartbeat(self.sysid, timeout)
+        await self.request_telemetry()
+        if self._telemetry_task is None:
+            self._telemetry_task = asyncio.create_task(self._keep_telemetry())
+
+    async def request_telemetry(self) -> None:
+        """Ask for GLOBAL_POSITION_INT, HOME_POSITION, SYS_STATUS and EXTENDED_SYS_STATE."""
+        self._requesting = True
+        try:
+            for msg_id, rate in TELEMETRY.items():
+                if msg_id in self.unsupported:
+                    continue
+                try:
+                    await self.link.set_message_interval(
+                        self.sysid, msg_id, rate or self.telemetry_rate_hz, vehicle=self.name,
+                        timeout=self.command_timeout, retries=self.retries)
+                except CommandRejected as exc:
+                    if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+                        self.unsupported.add(msg_id)
+                        log.info("%s: no EXTENDED_SYS_STATE (%s)", self.name, exc.result)
+                    else:
+                        raise
+        finally:
+            self._requesting = False
+
+    async def _keep_telemetry(self) -> None:
+        """Request telemetry again when position reports stop while heartbeats continue."""
+        while True:
+            await asyncio.sleep(0.5)
+            peer = self.link.peers.get(self.sysid)
+            if peer is None or self.lost or self._requesting:
+                continue
+            last = peer.received_at.get("GLOBAL_POSITION_INT", 0.0)
+            stale_after = max(2.0, 3.0 / self.telemetry_rate_hz)
+            if time.monotonic() - last > stale_after:
+                try:
+                    await self.request_telemetry()
+                except MavlinkError as exc:
+                    log.info("%s: telemetry request failed: %s", self.name, exc)
+
+    async def wait_ready(self, timeout: float = 60.0) -> None:
+        await self.link.wait_heartbeat(self.sysid, timeout)
+        await self._poll(self.ready, timeout, "ready to arm (position, home and pre-arm checks)")
+
+    def ready(self) -> bool:
+        """Position and home known, and the pre-arm checks pass (SYS_STATUS PREARM_CHECK bit)."""
+        if self.position is None or self.home is None or self.lost:
+            return False
+        st = self._msg("SYS_STATUS")
+        if st is None:
+            return False
+        if st.onboard_control_sensors_present & PREARM_BIT:
+            return bool(st.onboard_control_sensors_health & PREARM_BIT)
+        return True  # firmware without the pre-arm bit: position and home are all we can check
+
+    async def set_mode(self, mode: str, timeout: float = 3.0) -> None:
+        name = mode.upper()
+        if name not in COPTER_MODES:
+            raise ValueError(f"unknown ArduCopter mode {mode!r}; known: {', '.join(COPTER_MODES)}")
+        number = COPTER_MODES[name]
+        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
+                            float(number))
+        await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
+
+    async def arm(self, timeout: float = 30.0) -> None:
+        """Arm; ArduPilot answers FAILED (and a STATUSTEXT) while pre-arm checks fail, so retry."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
+                break
+            except CommandRejected as exc:
+                if exc.result not in ("FAILED", "TEMPORARILY_REJECTED") or time.monotonic() > deadline:
+                    raise
+                log.info("%s: arming refused (%s), retrying", self.name, exc.reason or exc.result)
+                await asyncio.sleep(1.0)
+        await self._poll(lambda: self.armed, 3.0, "the armed flag in HEARTBEAT")
+
+    async def disarm(self) -> None:
+        await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
+
+    async def takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+        await self._command(MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, float(rel_alt))
+
+    async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
+        start = time.monotonic()
+        left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
+        await self.wait_ready(left())
+        await self.set_mode("GUIDED")
+        await self.arm(min(30.0, left()))
+        await self.takeoff(rel_alt)
+        pos = self.position
+        assert pos is not None
+        self.target = Target(pos.lat, pos.lon, rel_alt)
+        await self._poll(lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt,
+                         left(), f"take-off altitude {rel_alt:g} m")
+
+    async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+        self.target = Target(lat, lon, rel_alt)
+        self._send_target()
+
+    def _send_target(self) -> None:
+        t = self.target
+        assert t is not None
+        peer = self.link.peer(self.sysid)
+        self.link.send(self.link.mav.set_position_target_global_int_encode(
+            int(time.monotonic() * 1000) & 0xFFFFFFFF, self.sysid, peer.compid,
+            MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, TYPE_MASK_POSITION_ONLY,
+            to_deg_e7(t.lat), to_deg_e7(t.lon), float(t.rel_alt), 0, 0, 0, 0, 0, 0, 0, 0))
+        self._target_sent = time.monotonic()
+
+    async def _on_wait(self) -> None:
+        # A lost SET_POSITION_TARGET has no ack: resend it once a second while waiting in GUIDED.
+        if (self.target is not None and self.mode == "GUIDED" and self._target_sent
+                and time.monotonic() - self._target_sent > 1.0):
+            self._send_target()
+
+    async def land(self) -> None:
+        self._target_sent = 0.0
+        await self.set_mode("LAND")
+
+    async def rtl(self) -> None:
+        self._target_sent = 0.0
+        await self.set_mode("RTL")
+
+    async def close(self) -> None:
+        if self._telemetry_task is not None:
+            self._telemetry_task.cancel()
+            try:
+                await self._telemetry_task
+            except asyncio.CancelledError:
+                pass
+            self._telemetry_task = None
+        if self.owns_link:
+            await self.link.close()
+
+    # --- state ----------------------------------------------------------------------------------------
+
+    def _msg(self, mtype: str) -> Any:
+        peer = self.link.peers.get(self.sysid)
+        return None if peer is None else peer.messages.get(mtype)
+
+    def _custom_mode(self) -> int | None:
+        hb = self._msg("HEARTBEAT")
+        return None if hb is None else hb.custom_mode
+
+    @property
+    def position(self) -> Position | None:
+        m = self._msg("GLOBAL_POSITION_INT")
+        if m is None or (m.lat == 0 and m.lon == 0):
+            return None  # ArduPilot reports 0,0 until its EKF has an origin
+        return Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
+
+    @property
+    def home(self) -> Home | None:
+        m = self._msg("HOME_POSITION")
+        if m is None:
+            return None
+        return Home(from_deg_e7(m.latitude), from_deg_e7(m.longitude), m.altitude / 1000.0)
+
+    @property
+    def armed(self) -> bool:
+        hb = self._msg("HEARTBEAT")
+        return bool(hb is not None and hb.base_mode & MAV.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    @property
+    def mode(self) -> str:
+        cm = self._custom_mode()
+        return "UNKNOWN" if cm is None else COPTER_MODE_NAMES.get(cm, f"MODE{cm}")
+
+    @property
+    def lost(self) -> bool:
+        return self.link.is_lost(self.sysid)
+
+    @property
+    def battery_remaining(self) -> int | None:
+        st = self._msg("SYS_STATUS")
+        return None if st is None or st.battery_remaining < 0 else int(st.battery_remaining)
+
+    @property
+    def landed_state(self) -> int | None:
+        m = self._msg("EXTENDED_SYS_STATE")
+        return None if m is None else m.landed_state

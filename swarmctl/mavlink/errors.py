@@ -1,0 +1,35 @@
+"""Errors raised while flying: each names the command or wait and the vehicle."""
+
+from __future__ import annotations
+
+
+class MavlinkError(Exception):
+    """Something a vehicle did or did not do (not bad user input: see swarmctl.errors.InputError)."""
+
+
+class CommandRejected(MavlinkError):
+    """The vehicle answered a command with DENIED, FAILED, UNSUPPORTED or TEMPORARILY_REJECTED."""
+
+    def __init__(self, command: str, vehicle: str, result: str, reason: str = ""):
+        self.command, self.vehicle, self.result, self.reason = command, vehicle, result, reason
+        why = f" ({reason})" if reason else ""
+        super().__init__(f"{vehicle}: {command} was refused: {result}{why}")
+
+
+class CommandTimeout(MavlinkError):
+    """No COMMAND_ACK after all retries."""
+
+    def __init__(self, command: str, vehicle: str, attempts: int, timeout: float):
+        self.command, self.vehicle, self.attempts = command, vehicle, attempts
+        detail = (f"after {attempts} attempts ({timeout:g} s each)" if attempts
+                  else "(MAVSDK's own retries timed out)")
+        super().__init__(f"{vehicle}: no answer to {command} {detail}")
+
+
+class WaitTimeout(MavlinkError):
+    """A state the vehicle should reach (ready, altitude, position, landed) was not reached in time."""
+
+    def __init__(self, what: str, vehicle: str, timeout: float, detail: str = ""):
+        self.what, self.vehicle = what, vehicle
+        extra = f" ({detail})" if detail else ""
+        super().__init__(f"{vehicle}: timed out after {timeout:g} s waiting for {what}{extra}")

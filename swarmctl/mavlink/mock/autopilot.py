@@ -1,0 +1,808 @@
+"""A mock ArduCopter / PX4 multicopter: a real MAVLink 2 endpoint (pymavlink bytes over UDP/TCP/serial).
+
+It behaves like the real autopilot as far as a controller can see (checked against a real ArduCopter
+SITL log): HEARTBEAT type/autopilot/base_mode/custom_mode, pre-arm checks that fail for the first
+seconds (FAILED + a "PreArm:" STATUSTEXT), takeoff only when armed in GUIDED, COMMAND_ACK results,
+SET_MESSAGE_INTERVAL (a fresh ArduPilot sends only heartbeats), simple kinematics, a draining battery,
+a GCS failsafe, signing, and faults injected from tests.
+
+Time: physics (speeds, climb, battery, the "not ready" period) runs `speedup` times faster than the
+wall clock; link timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations)
+stays in wall-clock seconds, because the controller on the other side runs in real time.
+
+It runs in its own thread: ``with MockAutopilot(sysid=1, connect="udpout:127.0.0.1:14550") as v: ...``.
+Hooks for later simulation layers: `tunnel_handler(mock, msg)` sees every TUNNEL message addressed to
+the vehicle, `step_hooks` are called as hook(mock, dt_sim) after each physics step, and
+`send_message(msg)` sends any message built with ``mock.mav.<name>_encode(...)``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import random
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from swarmctl.mavlink.codec import (COPTER_MODE_NAMES, COPTER_MODES, PX4_MODES, distance_m,
+                                    from_deg_e7, ne_m, offset_m, px4_decode, px4_encode, px4_mode_name,
+                                    to_deg_e7)
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+
+MAV = mavlink2
+log = logging.getLogger(__name__)
+
+# SYS_STATUS sensor bits the mock reports (gyro, accel, mag, baro, GPS, motors, battery, pre-arm).
+_SENSORS = (MAV.MAV_SYS_STATUS_SENSOR_3D_GYRO | MAV.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+            | MAV.MAV_SYS_STATUS_SENSOR_3D_MAG | MAV.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+            | MAV.MAV_SYS_STATUS_SENSOR_GPS | MAV.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+            | MAV.MAV_SYS_STATUS_SENSOR_BATTERY | MAV.MAV_SYS_STATUS_PREARM_CHECK)
+
+_PX4_DEFAULT_STREAMS = {  # PX4 streams telemetry unasked (ArduPilot sends only heartbeats)
+    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.2, MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
+    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0, MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+}
+_STREAMABLE = {MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, MAV.MAVLINK_MSG_ID_HOME_POSITION,
+               MAV.MAVLINK_MSG_ID_SYS_STATUS, MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+               MAV.MAVLINK_MSG_ID_BATTERY_STATUS,
+               MAV.MAVLINK_MSG_ID_HEARTBEAT, MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
+
+_PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station touches
+    "MIS_TAKEOFF_ALT": 2.5, "MPC_XY_CRUISE": 5.0, "RTL_RETURN_ALT": 30.0, "NAV_DLL_ACT": 2.0,
+    "COM_OF_LOSS_T": 1.0, "SYS_AUTOSTART": 4001.0,
+}
+_COPTER_ARMABLE = {"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
+
+
+class _Outbox:
+    """File-like target for MAVLink.send(): collects packed bytes for the mock's delivery logic."""
+
+    def __init__(self) -> None:
+        self.items: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.items.append(bytes(data))
+
+
+@dataclass
+class MockState:
+    """A snapshot of the mock's state, for tests."""
+
+    lat: float
+    lon: float
+    rel_alt: float
+    armed: bool
+    mode: str
+    battery: float
+    ready: bool
+    gcs_failsafe: bool
+
+
+class MockAutopilot:
+    def __init__(self, sysid: int = 1, connect: str = "udpout:127.0.0.1:14550", *,
+                 home: tuple[float, float, float] = (-35.363262, 149.165237, 584.0),
+                 autopilot: str = "ardupilot", speed: float = 5.0, climb_rate: float = 2.5,
+                 descent_rate: float = 1.5, speedup: float = 1.0, signing_key: bytes | None = None,
+                 ready_after: float = 2.0, gcs_failsafe_timeout: float | None = 5.0,
+                 rtl_alt: float = 15.0, battery_drain: float = 0.08, compid: int = 1,
+                 seed: int | None = None, tick: float = 0.02):
+        if autopilot not in ("ardupilot", "px4"):
+            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', not {autopilot!r}")
+        if not 1 <= sysid <= 255:
+            raise ValueError("sysid must be 1..255")
+        self.sysid, self.compid, self.connect = sysid, compid, connect
+        self.personality = autopilot
+        self.home = home
+        self.speed, self.climb_rate, self.descent_rate = speed, climb_rate, descent_rate
+        self.speedup = speedup
+        self.signing_key = signing_key
+        self.ready_after = ready_after  # simulated seconds after boot before pre-arm checks pass
+        self.gcs_failsafe_timeout = gcs_failsafe_timeout  # wall seconds; None disables the failsafe
+        self.rtl_alt = rtl_alt
+        self.battery_drain = battery_drain  # % per simulated second while flying
+        self.tick = tick
+        self.rng = random.Random(seed)
+        # hooks for later layers (e.g. a simulated detector riding on TUNNEL messages)
+        self.tunnel_handler: Callable[[MockAutopilot, Any], None] | None = None
+        self.step_hooks: list[Callable[[MockAutopilot, float], None]] = []
+        # faults (set from the test thread; plain attribute writes)
+        self.packet_loss = 0.0
+        self.latency = 0.0
+        self.arming_refusal: str | None = None
+        self._no_heartbeat_until = 0.0
+        self._down_until = 0.0
+        self._reboot_pending = False
+        self._glitch: tuple[float, float, float] | None = None  # north, east, until (wall)
+        self.forced_results: dict[int, int] = {}  # command -> MAV_RESULT to answer with
+        self._drop_commands: dict[int, int | None] = {}  # command -> how many to ignore (None: all)
+        # observation for tests
+        # the latest messages addressed to us, (type, src sysid, command or 0), and the answers given
+        self.received: deque[tuple[str, int, int]] = deque(maxlen=10_000)
+        self.commands: deque[tuple[int, int]] = deque(maxlen=10_000)  # (command, MAV_RESULT)
+        self.ignored = 0  # messages seen that were addressed to another system
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._transport: Transport | None = None
+        self._outbox = _Outbox()
+        self.mav: Any = None
+        self._delayed: list[tuple[float, int, str, Any]] = []
+        self._seq = itertools.count()
+        self._boot()
+
+    # --- life cycle ------------------------------------------------------------------------------------
+
+    def _boot(self) -> None:
+        now = time.monotonic()
+        self.boot_wall = now
+        self.sim_time = 0.0
+        lat, lon = (self.lat, self.lon) if hasattr(self, "lat") else self.home[:2]
+        self.lat, self.lon, self.rel_alt = lat, lon, 0.0
+        self.vel = (0.0, 0.0, 0.0)  # north, east, down m/s
+        self.armed = False
+        self.custom_mode = (COPTER_MODES["STABILIZE"] if self.personality == "ardupilot"
+                            else px4_encode(*PX4_MODES["POSCTL"]))
+        self.target: tuple[float, float, float] | None = None  # lat, lon, rel_alt
+        self.battery = getattr(self, "battery", 100.0)
+        self.ready = False
+        self.home_set = False
+        self.last_gcs_heartbeat: float | None = None
+        self.gcs_failsafe = False
+        self.last_setpoint = -1e9
+        self.params = dict(_PX4_PARAMS)
+        if self.personality == "px4":
+            self.intervals = {k: v for k, v in _PX4_DEFAULT_STREAMS.items()}
+        else:
+            self.intervals = {}
+        self.next_due: dict[int, float] = {}
+        self.next_heartbeat = now
+
+    def start(self) -> "MockAutopilot":
+        self._transport = open_transport(self.connect)
+        self.mav = MAV.MAVLink(self._outbox, srcSystem=self.sysid, srcComponent=self.compid)
+        self.mav.robust_parsing = True
+        if self.signing_key is not None:
+            s = self.mav.signing
+            s.secret_key, s.sign_outgoing, s.link_id = self.signing_key, True, 0
+            s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
+            s.allow_unsigned_callback = lambda _mav, msg_id: msg_id == MAV.MAVLINK_MSG_ID_RADIO_STATUS
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}",
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+
+    def __enter__(self) -> "MockAutopilot":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    @property
+    def local_port(self) -> int | None:
+        return getattr(self._transport, "local_port", None)
+
+    @property
+    def rejected_unsigned(self) -> int:
+        """Messages dropped because they were unsigned or wrongly signed."""
+        return 0 if self.mav is None else self.mav.signing.reject_count
+
+    # --- faults ------------------------------------------------------------------------------------------
+
+    def drop_heartbeats(self, seconds: float) -> None:
+        """Send no HEARTBEAT for the next `seconds` (wall clock); other messages still flow."""
+        self._no_heartbeat_until = time.monotonic() + seconds
+
+    def blackout(self, seconds: float) -> None:
+        """Neither send nor receive anything for `seconds` (a radio out of range)."""
+        self._down_until = time.monotonic() + seconds
+
+    def reboot(self, downtime: float = 1.0) -> None:
+        """Go silent for `downtime` s, then boot again: disarmed, on the ground, streams reset."""
+        self._down_until = time.monotonic() + downtime
+        self._reboot_pending = True
+
+    def refuse_arming(self, reason: str | None = "Hardware safety switch") -> None:
+        """Fail every arm command with a "PreArm: <reason>" STATUSTEXT (None: arm normally again)."""
+        self.arming_refusal = reason
+
+    def gps_glitch(self, north_m: float, east_m: float, seconds: float = 2.0) -> None:
+        """Report a position jumped by north/east metres for `seconds` (wall clock)."""
+        self._glitch = (north_m, east_m, time.monotonic() + seconds)
+
+    def drop_commands(self, command: int, count: int | None = None) -> None:
+        """Silently ignore the next `count` COMMAND_LONG/INT of this id (None: all of them)."""
+        self._drop_commands[command] = count
+
+    def force_result(self, command: int, result: int | None) -> None:
+        """Answer this command with the given MAV_RESULT without acting on it (None: normal)."""
+        if result is None:
+            self.forced_results.pop(command, None)
+        else:
+            self.forced_results[command] = result
+
+    # --- observation -----------------------------------------------------------------------------------
+
+    @property
+    def mode_name(self) -> str:
+        if self.personality == "px4":
+            return px4_mode_name(self.custom_mode)
+        return COPTER_MODE_NAMES.get(self.custom_mode, str(self.custom_mode))
+
+    def state(self) -> MockState:
+        with self._lock:
+            return MockState(self.lat, self.lon, self.rel_alt, self.armed, self.mode_name,
+                             self.battery, self.ready, self.gcs_failsafe)
+
+    def wait_for(self, condition: Callable[["MockAutopilot"], bool], timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if condition(self):
+                return True
+            time.sleep(0.01)
+        return condition(self)
+
+    # --- main loop -----------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        assert self._transport is not None
+        last_step = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                data = self._transport.read(self.tick / 2)
+            except (OSError, ValueError):
+                data = b""
+            now = time.monotonic()
+            if data and now >= self._down_until and self.rng.random() >= self.packet_loss:
+                msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+                for msg in msgs:
+                    if self.latency > 0:
+                        heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))
+                    else:
+                        self._handle_safely(msg)
+            while self._delayed and self._delayed[0][0] <= now:
+                _, _, kind, item = heapq.heappop(self._delayed)
+                if kind == "in":
+                    self._handle_safely(item)
+                else:
+                    self._write(item)
+            if self._reboot_pending and now >= self._down_until:
+                with self._lock:
+                    self._reboot_pending = False
+                    self._boot()
+                last_step = now
+            if now - last_step >= self.tick:
+                dt = now - last_step
+                last_step = now
+                if now >= self._down_until:
+                    with self._lock:
+                        self._step(dt * self.speedup, now)
+                    for hook in list(self.step_hooks):
+                        hook(self, dt * self.speedup)
+                    self._emit(now)
+
+    def _handle_safely(self, msg: Any) -> None:
+        try:
+            with self._lock:
+                self._handle(msg)
+        except Exception:  # a malformed or unexpected message must not stop the vehicle
+            log.exception("mock vehicle %d: error handling %s", self.sysid, msg.get_type())
+
+    # --- sending -------------------------------------------------------------------------------------
+
+    def send_message(self, msg: Any) -> None:
+        """Pack, sign and deliver one message (subject to the loss/latency/blackout faults)."""
+        if self.mav is None:
+            return
+        now = time.monotonic()
+        self.mav.send(msg)
+        items, self._outbox.items = self._outbox.items, []
+        if now < self._down_until:
+            return
+        for buf in items:
+            if self.packet_loss and self.rng.random() < self.packet_loss:
+                continue
+            if self.latency > 0:
+                heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "out", buf))
+            else:
+                self._write(buf)
+
+    def _write(self, buf: bytes) -> None:
+        if self._transport is not None:
+            try:
+                self._transport.write(buf)
+            except OSError:
+                pass
+
+    def statustext(self, text: str, severity: int = MAV.MAV_SEVERITY_INFO) -> None:
+        self.send_message(self.mav.statustext_encode(severity, text.encode()[:50]))
+
+    def _ack(self, msg: Any, command: int, result: int) -> None:
+        self.commands.append((command, result))
+        self.send_message(self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(),
+                                                      msg.get_srcComponent()))
+
+    # --- periodic output --------------------------------------------------------------------------------
+
+    def _emit(self, now: float) -> None:
+        if now >= self.next_heartbeat:
+            self.next_heartbeat = now + 1.0
+            if now >= self._no_heartbeat_until:
+                self.send_message(self._heartbeat())
+        for msg_id, interval in list(self.intervals.items()):
+            due = self.next_due.get(msg_id, 0.0)
+            if now >= due:
+                m = self._build(msg_id)
+                if m is not None:  # nothing to report yet (no home): try again next tick
+                    self.next_due[msg_id] = max(due + interval, now)
+                    self.send_message(m)
+
+    def _heartbeat(self) -> Any:
+        base = MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.personality == "ardupilot":
+            # as ArduCopter SITL sends them: 89 disarmed, 217 armed (log reference)
+            base |= (MAV.MAV_MODE_FLAG_STABILIZE_ENABLED | MAV.MAV_MODE_FLAG_GUIDED_ENABLED
+                     | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
+            autopilot = MAV.MAV_AUTOPILOT_ARDUPILOTMEGA
+        else:
+            main, _sub = px4_decode(self.custom_mode)
+            base |= MAV.MAV_MODE_FLAG_STABILIZE_ENABLED
+            if main in (4, 6):
+                base |= MAV.MAV_MODE_FLAG_GUIDED_ENABLED | MAV.MAV_MODE_FLAG_AUTO_ENABLED
+            else:
+                base |= MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            autopilot = MAV.MAV_AUTOPILOT_PX4
+        if self.armed:
+            base |= MAV.MAV_MODE_FLAG_SAFETY_ARMED
+        status = (MAV.MAV_STATE_ACTIVE if self.armed
+                  else MAV.MAV_STATE_STANDBY if self.ready else MAV.MAV_STATE_BOOT)
+        return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode,
+                                         status)
+
+    def _reported_latlon(self) -> tuple[float, float]:
+        if self._glitch is not None:
+            n, e, until = self._glitch
+            if time.monotonic() < until:
+                return offset_m(self.lat, self.lon, n, e)
+            self._glitch = None
+        return self.lat, self.lon
+
+    def _time_boot_ms(self) -> int:
+        return int((time.monotonic() - self.boot_wall) * 1000) & 0xFFFFFFFF
+
+    def _build(self, msg_id: int) -> Any:
+        home_lat, home_lon, home_alt = self.home
+        if msg_id == MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            if not self.ready and self.personality == "px4":
+                return None  # PX4 publishes no global position before it has one
+            if self.ready:
+                lat, lon = self._reported_latlon()
+                lat_i, lon_i = to_deg_e7(lat), to_deg_e7(lon)
+            else:
+                lat_i = lon_i = 0  # no EKF origin yet: ArduPilot reports zeros
+            vn, ve, vd = self.vel
+            hdg = int(math.degrees(math.atan2(ve, vn)) % 360 * 100) if (vn or ve) else 65535
+            return self.mav.global_position_int_encode(
+                self._time_boot_ms(), lat_i, lon_i, int(round((home_alt + self.rel_alt) * 1000)),
+                int(round(self.rel_alt * 1000)), int(vn * 100), int(ve * 100), int(vd * 100), hdg)
+        if msg_id == MAV.MAVLINK_MSG_ID_HOME_POSITION:
+            if not self.home_set:
+                return None
+            return self.mav.home_position_encode(
+                to_deg_e7(home_lat), to_deg_e7(home_lon), int(round(home_alt * 1000)), 0, 0, 0,
+                [1.0, 0.0, 0.0, 0.0], 0, 0, 0, int((time.monotonic() - self.boot_wall) * 1e6))
+        if msg_id == MAV.MAVLINK_MSG_ID_SYS_STATUS:
+            health = _SENSORS if self.ready else _SENSORS & ~(MAV.MAV_SYS_STATUS_PREARM_CHECK
+                                                              | MAV.MAV_SYS_STATUS_SENSOR_GPS)
+            volts = 4 * (3.5 + 0.7 * self.battery / 100.0)
+            current = 1500 if self.rel_alt > 0.1 else (100 if self.armed else 50)
+            return self.mav.sys_status_encode(_SENSORS, _SENSORS, health, 200, int(volts * 1000),
+                                              current, int(self.battery), 0, 0, 0, 0, 0, 0)
+        if msg_id == MAV.MAVLINK_MSG_ID_BATTERY_STATUS:
+            cell_mv = int(1000 * (3.5 + 0.7 * self.battery / 100.0))
+            return self.mav.battery_status_encode(
+                0, MAV.MAV_BATTERY_FUNCTION_ALL, MAV.MAV_BATTERY_TYPE_LIPO, 32767,
+                [cell_mv] * 4 + [65535] * 6, 1500 if self.rel_alt > 0.1 else 50, -1, -1,
+                int(self.battery))
+        if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return self.mav.extended_sys_state_encode(MAV.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
+        if msg_id == MAV.MAVLINK_MSG_ID_HEARTBEAT:
+            return self._heartbeat()
+        if msg_id == MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+            caps = (MAV.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | MAV.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                    | MAV.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                    | MAV.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+                    | (MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.personality == "px4"
+                       else MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST))
+            version = (1 << 24) | (15 << 16) if self.personality == "px4" else (4 << 24) | (5 << 16)
+            return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
+                                                     0, 0, 0x5357_0000 + self.sysid)
+        return None
+
+    def _landed_state(self) -> int:
+        if not self.armed and self.rel_alt <= 0.05:
+            return MAV.MAV_LANDED_STATE_ON_GROUND
+        if self.mode_name == "LAND" and self.vel[2] > 0:
+            return MAV.MAV_LANDED_STATE_LANDING
+        if self.target is not None and self.rel_alt < self.target[2] - 0.5 and self.vel[2] < 0 \
+                and self.rel_alt < 2.0:
+            return MAV.MAV_LANDED_STATE_TAKEOFF
+        return MAV.MAV_LANDED_STATE_IN_AIR if self.rel_alt > 0.05 else MAV.MAV_LANDED_STATE_ON_GROUND
+
+    # --- physics ---------------------------------------------------------------------------------------
+
+    def _step(self, dt: float, now: float) -> None:
+        self.sim_time += dt
+        if not self.ready and self.sim_time >= self.ready_after:
+            self.ready = self.home_set = True
+            if self.personality == "ardupilot":
+                self.statustext("EKF3 IMU0 origin set")
+                self.statustext("ArduPilot Ready")
+        self._failsafe(now)
+        if self.armed:
+            self.battery = max(0.0, self.battery - dt * (self.battery_drain if self.rel_alt > 0.1
+                                                         else self.battery_drain / 10))
+        if not self.armed:
+            self.vel = (0.0, 0.0, 0.0)
+            return
+        mode = self.mode_name
+        home_lat, home_lon, _ = self.home
+        if mode == "LAND":
+            self._move(self.lat, self.lon, 0.0, dt)
+        elif mode == "RTL":
+            away = distance_m(self.lat, self.lon, home_lat, home_lon)
+            if away > 0.01 and self.rel_alt < self.rtl_alt - 0.01:
+                self._move(self.lat, self.lon, self.rtl_alt, dt)
+            elif away > 0.01:
+                self._move(home_lat, home_lon, self.rel_alt, dt)
+            else:
+                self._move(home_lat, home_lon, 0.0, dt)
+        elif self.target is not None and mode in ("GUIDED", "TAKEOFF", "HOLD", "OFFBOARD"):
+            self._move(*self.target, dt)
+            if mode == "TAKEOFF" and abs(self.rel_alt - self.target[2]) < 0.01:
+                self.custom_mode = px4_encode(*PX4_MODES["HOLD"])
+        else:
+            self.vel = (0.0, 0.0, 0.0)
+        if mode in ("LAND", "RTL") and self.rel_alt <= 0.0 and self.vel[2] >= 0:
+            self.armed = False  # landed: disarm, as both autopilots do
+            self.target = None
+            self.vel = (0.0, 0.0, 0.0)
+            self.statustext("Disarming motors" if self.personality == "ardupilot" else "Disarmed")
+
+    def _move(self, lat: float, lon: float, alt: float, dt: float) -> None:
+        """Fly toward (lat, lon, alt): horizontal speed limit, climb and descent rates, exact arrival."""
+        n, e = ne_m(self.lat, self.lon, lat, lon)
+        dist = math.hypot(n, e)
+        step = min(dist, self.speed * dt)
+        if dist > 0 and step >= dist:
+            self.lat, self.lon = lat, lon
+        elif dist > 0:
+            self.lat, self.lon = offset_m(self.lat, self.lon, n * step / dist, e * step / dist)
+        dz = alt - self.rel_alt
+        rate = self.climb_rate if dz > 0 else self.descent_rate
+        dz_step = max(-rate * dt, min(rate * dt, dz))
+        self.rel_alt = alt if abs(dz_step) >= abs(dz) else self.rel_alt + dz_step
+        self.rel_alt = max(0.0, self.rel_alt)
+        if dt > 0:
+            self.vel = ((n * step / dist / dt) if dist else 0.0,
+                        (e * step / dist / dt) if dist else 0.0, -dz_step / dt)
+
+    def _failsafe(self, now: float) -> None:
+        """GCS failsafe: no controller heartbeat for gcs_failsafe_timeout s -> RTL (or disarm on ground)."""
+        if self.gcs_failsafe_timeout is None or self.last_gcs_heartbeat is None:
+            return
+        silent = now - self.last_gcs_heartbeat > self.gcs_failsafe_timeout
+        if not silent:
+            self.gcs_failsafe = False
+            return
+        if self.gcs_failsafe:
+            return
+        self.gcs_failsafe = True
+        if not self.armed:
+            return
+        if self.rel_alt <= 0.05:
+            self.armed = False
+            self.statustext("GCS Failsafe: disarming", MAV.MAV_SEVERITY_CRITICAL)
+        elif self.mode_name not in ("RTL", "LAND"):
+            self._set_mode_name("RTL")
+            self.statustext("GCS Failsafe" if self.personality == "ardupilot"
+                            else "Failsafe: no connection to ground station, returning",
+                            MAV.MAV_SEVERITY_CRITICAL)
+
+    # --- receiving ----------------------------------------------------------------------------------------
+
+    def _for_me(self, msg: Any) -> bool:
+        ts = getattr(msg, "target_system", None)
+        return ts is None or ts in (0, self.sysid)
+
+    def _handle(self, msg: Any) -> None:
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA":
+            return
+        if msg.get_srcSystem() == self.sysid:
+            return  # our own echo (several vehicles on one channel)
+        if not self._for_me(msg):
+            self.ignored += 1  # addressed to another vehicle on the same channel
+            return
+        cmd = getattr(msg, "command", 0) if mtype in ("COMMAND_LONG", "COMMAND_INT") else 0
+        self.received.append((mtype, msg.get_srcSystem(), cmd))
+        if mtype == "HEARTBEAT":
+            if msg.autopilot == MAV.MAV_AUTOPILOT_INVALID:
+                self.last_gcs_heartbeat = time.monotonic()
+        elif mtype in ("COMMAND_LONG", "COMMAND_INT"):
+            self._command(msg)
+        elif mtype == "SET_POSITION_TARGET_GLOBAL_INT":
+            self._position_target(msg)
+        elif mtype == "SET_POSITION_TARGET_LOCAL_NED":
+            self._local_target(msg)
+        elif mtype == "SET_MODE":
+            self._set_custom_mode(msg.custom_mode)
+        elif mtype in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
+            self._param(msg)
+        elif mtype in ("MISSION_REQUEST_LIST",):
+            self.send_message(self.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(),
+                                                            0, getattr(msg, "mission_type", 0)))
+        elif mtype == "MISSION_CLEAR_ALL":
+            self.send_message(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(),
+                                                          MAV.MAV_MISSION_ACCEPTED,
+                                                          getattr(msg, "mission_type", 0)))
+        elif mtype == "PING":
+            if msg.target_system == 0:
+                self.send_message(self.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(),
+                                                       msg.get_srcComponent()))
+        elif mtype == "TIMESYNC":
+            if msg.tc1 == 0:
+                self.send_message(self.mav.timesync_encode(time.monotonic_ns(), msg.ts1))
+        elif mtype == "TUNNEL" and self.tunnel_handler is not None:
+            self.tunnel_handler(self, msg)
+
+    # commands ------------------------------------------------------------------------------------------
+
+    def _command(self, msg: Any) -> None:
+        command = msg.command
+        if command in self._drop_commands:
+            left = self._drop_commands[command]
+            if left is None:
+                return
+            if left > 0:
+                self._drop_commands[command] = left - 1
+                return
+            del self._drop_commands[command]
+        if command in self.forced_results:
+            self._ack(msg, command, self.forced_results[command])
+            return
+        p = [msg.param1, msg.param2, msg.param3, msg.param4]
+        if msg.get_type() == "COMMAND_INT":
+            p += [msg.x, msg.y, msg.z]
+            frame = msg.frame
+        else:
+            p += [msg.param5, msg.param6, msg.param7]
+            frame = MAV.MAV_FRAME_GLOBAL
+            if command == MAV.MAV_CMD_DO_REPOSITION:
+                p[4], p[5] = to_deg_e7(p[4]) if math.isfinite(p[4]) else 0, \
+                    to_deg_e7(p[5]) if math.isfinite(p[5]) else 0
+        result = self._run_command(msg, command, p, frame)
+        if result is not None:
+            self._ack(msg, command, result)
+
+    def _run_command(self, msg: Any, command: int, p: list[float], frame: int) -> int | None:
+        R = MAV
+        if command == R.MAV_CMD_SET_MESSAGE_INTERVAL:
+            msg_id, interval_us = int(p[0]), p[1]
+            if msg_id not in _STREAMABLE:
+                return R.MAV_RESULT_FAILED
+            if interval_us < 0:
+                self.intervals.pop(msg_id, None)
+            elif interval_us == 0:
+                default = _PX4_DEFAULT_STREAMS.get(msg_id) if self.personality == "px4" else None
+                if default:
+                    self.intervals[msg_id] = default
+                else:
+                    self.intervals.pop(msg_id, None)
+            else:
+                self.intervals[msg_id] = max(interval_us / 1e6, 0.005)
+            self.next_due[msg_id] = 0.0
+            return R.MAV_RESULT_ACCEPTED
+        if command in (R.MAV_CMD_REQUEST_MESSAGE, R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+                       R.MAV_CMD_GET_HOME_POSITION):
+            msg_id = {R.MAV_CMD_REQUEST_MESSAGE: int(p[0]),
+                      R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: R.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                      R.MAV_CMD_GET_HOME_POSITION: R.MAVLINK_MSG_ID_HOME_POSITION}[command]
+            if msg_id not in _STREAMABLE:
+                return R.MAV_RESULT_UNSUPPORTED if self.personality == "px4" else R.MAV_RESULT_FAILED
+            reply = self._build(msg_id)
+            if reply is None:
+                return R.MAV_RESULT_FAILED  # e.g. home not set yet (as in the SITL log)
+            self._ack(msg, command, R.MAV_RESULT_ACCEPTED)
+            self.send_message(reply)
+            return None
+        if command == R.MAV_CMD_DO_SET_MODE:
+            if self.personality == "px4":
+                return self._set_custom_mode(px4_encode(int(p[1]), int(p[2])))
+            return self._set_custom_mode(int(p[1]))
+        if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
+            return self._arm(p[0] >= 0.5, p[1] == 21196)
+        if command == R.MAV_CMD_NAV_TAKEOFF:
+            return self._takeoff(p[6])
+        if command == R.MAV_CMD_NAV_LAND:
+            return self._set_mode_name("LAND")
+        if command == R.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return self._set_mode_name("RTL")
+        if command == R.MAV_CMD_DO_REPOSITION:
+            return self._reposition(p, frame)
+        if command == R.MAV_CMD_DO_CHANGE_SPEED:
+            if p[1] > 0:
+                self.speed = p[1]
+            return R.MAV_RESULT_ACCEPTED
+        if command == R.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
+            if self.armed:
+                return R.MAV_RESULT_DENIED if self.personality == "px4" else R.MAV_RESULT_FAILED
+            if int(p[0]) == 1:
+                self._ack(msg, command, R.MAV_RESULT_ACCEPTED)
+                self.reboot(1.0)
+                return None
+            return R.MAV_RESULT_UNSUPPORTED
+        return R.MAV_RESULT_UNSUPPORTED
+
+    def _set_mode_name(self, name: str) -> int:
+        if self.personality == "px4":
+            return self._set_custom_mode(px4_encode(*PX4_MODES[name]))
+        return self._set_custom_mode(COPTER_MODES[name])
+
+    def _set_custom_mode(self, custom_mode: int) -> int:
+        if self.personality == "px4":
+            main, sub = px4_decode(custom_mode)
+            name = px4_mode_name(custom_mode)
+            if name.startswith("PX4("):
+                return MAV.MAV_RESULT_UNSUPPORTED
+            if name == "OFFBOARD" and time.monotonic() - self.last_setpoint > 0.5:
+                # PX4 needs a setpoint stream (> 2 Hz) before it accepts OFFBOARD
+                self.statustext("Switching to Offboard is currently not available",
+                                MAV.MAV_SEVERITY_CRITICAL)
+                return MAV.MAV_RESULT_TEMPORARILY_REJECTED
+            if name in ("HOLD", "RTL", "LAND", "MISSION", "TAKEOFF", "POSCTL") and not self.ready:
+                self.statustext(f"Switching to {name} is currently not available",
+                                MAV.MAV_SEVERITY_CRITICAL)
+                return MAV.MAV_RESULT_TEMPORARILY_REJECTED
+        else:
+            name = COPTER_MODE_NAMES.get(custom_mode)
+            if name is None:
+                self.statustext("Flight mode change failed", MAV.MAV_SEVERITY_WARNING)
+                return MAV.MAV_RESULT_FAILED
+            if name in ("GUIDED", "RTL", "LOITER", "AUTO", "SMART_RTL") and not self.ready:
+                self.statustext(f"Flight mode change failed: {name} requires position",
+                                MAV.MAV_SEVERITY_WARNING)
+                return MAV.MAV_RESULT_FAILED
+        previous = self.mode_name
+        self.custom_mode = custom_mode
+        now_name = self.mode_name
+        if now_name in ("GUIDED", "HOLD") and previous != now_name:
+            # hold where we are until told otherwise
+            self.target = (self.lat, self.lon, self.rel_alt) if self.rel_alt > 0.05 else None
+        return MAV.MAV_RESULT_ACCEPTED
+
+    def _arm(self, arm: bool, force: bool) -> int:
+        refused = MAV.MAV_RESULT_FAILED if self.personality == "ardupilot" \
+            else MAV.MAV_RESULT_TEMPORARILY_REJECTED
+        prefix = "PreArm" if self.personality == "ardupilot" else "Arming denied"
+        if not arm:
+            if self.armed and self.rel_alt > 0.05 and not force:
+                self.statustext("Disarm: vehicle is flying" if self.personality == "ardupilot"
+                                else "Disarming denied: not landed", MAV.MAV_SEVERITY_CRITICAL)
+                return refused
+            self.armed = False
+            self.target = None
+            return MAV.MAV_RESULT_ACCEPTED
+        if self.armed:
+            return MAV.MAV_RESULT_ACCEPTED
+        reason = None
+        if self.arming_refusal is not None:
+            reason = self.arming_refusal
+        elif not self.ready:
+            reason = "Need Position Estimate" if self.personality == "ardupilot" \
+                else "Global position required"
+        elif self.personality == "ardupilot" and self.mode_name not in _COPTER_ARMABLE:
+            self.statustext("Arm: Mode not armable", MAV.MAV_SEVERITY_CRITICAL)
+            return refused
+        if reason is not None and not force:
+            self.statustext(f"{prefix}: {reason}", MAV.MAV_SEVERITY_CRITICAL)
+            return refused
+        self.armed = True
+        return MAV.MAV_RESULT_ACCEPTED
+
+    def _takeoff(self, alt_param: float) -> int:
+        if self.personality == "ardupilot":
+            # ArduCopter: GUIDED (or AUTO), armed, on the ground; param7 is metres above home
+            if self.mode_name != "GUIDED" or not self.armed or self.rel_alt > 0.05:
+                return MAV.MAV_RESULT_FAILED
+            if not math.isfinite(alt_param) or alt_param <= 0:
+                return MAV.MAV_RESULT_FAILED
+            self.target = (self.lat, self.lon, float(alt_param))
+            return MAV.MAV_RESULT_ACCEPTED
+        # PX4: param7 is AMSL (NaN: MIS_TAKEOFF_ALT above home); switches to AUTO.TAKEOFF
+        if not self.armed:
+            return MAV.MAV_RESULT_TEMPORARILY_REJECTED
+        rel = (self.params["MIS_TAKEOFF_ALT"] if not math.isfinite(alt_param)
+               else alt_param - self.home[2])
+        if rel <= 0:
+            return MAV.MAV_RESULT_DENIED
+        self.custom_mode = px4_encode(*PX4_MODES["TAKEOFF"])
+        self.target = (self.lat, self.lon, float(rel))
+        return MAV.MAV_RESULT_ACCEPTED
+
+    def _reposition(self, p: list[float], frame: int) -> int:
+        if not self.armed or self.rel_alt <= 0.05:
+            return MAV.MAV_RESULT_DENIED if self.personality == "px4" else MAV.MAV_RESULT_FAILED
+        lat = from_deg_e7(int(p[4])) if p[4] else self.lat
+        lon = from_deg_e7(int(p[5])) if p[5] else self.lon
+        alt = self._relative_alt(p[6], frame) if math.isfinite(p[6]) else self.rel_alt
+        if p[0] > 0:
+            self.speed = p[0]
+        self._set_mode_name("HOLD" if self.personality == "px4" else "GUIDED")
+        self.target = (lat, lon, alt)
+        return MAV.MAV_RESULT_ACCEPTED
+
+    def _relative_alt(self, alt: float, frame: int) -> float:
+        if frame in (MAV.MAV_FRAME_GLOBAL, MAV.MAV_FRAME_GLOBAL_INT):
+            return alt - self.home[2]
+        return alt  # relative (and terrain frames, treated as relative over flat ground)
+
+    def _position_target(self, msg: Any) -> None:
+        self.last_setpoint = time.monotonic()
+        if msg.type_mask & 0b111:  # position ignored: velocity/acceleration targets not modelled
+            return
+        mode = self.mode_name
+        if not self.armed or self.rel_alt <= 0.05 or mode not in ("GUIDED", "OFFBOARD"):
+            return  # ArduCopter ignores position targets outside GUIDED; PX4 outside OFFBOARD
+        self.target = (from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int),
+                       self._relative_alt(msg.alt, msg.coordinate_frame))
+
+    def _local_target(self, msg: Any) -> None:
+        self.last_setpoint = time.monotonic()
+        if msg.type_mask & 0b111 or self.mode_name not in ("GUIDED", "OFFBOARD") or not self.armed:
+            return
+        lat, lon = offset_m(self.home[0], self.home[1], msg.x, msg.y)
+        self.target = (lat, lon, -msg.z)
+
+    def _param(self, msg: Any) -> None:
+        names = sorted(self.params)
+
+        def value(name: str) -> None:
+            self.send_message(self.mav.param_value_encode(
+                name.encode(), float(self.params[name]), MAV.MAV_PARAM_TYPE_REAL32, len(names),
+                names.index(name)))
+
+        mtype = msg.get_type()
+        if mtype == "PARAM_REQUEST_LIST":
+            for n in names:
+                value(n)
+        elif mtype == "PARAM_REQUEST_READ":
+            pid = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
+            name = pid.rstrip("\x00") if msg.param_index < 0 else (
+                names[msg.param_index] if msg.param_index < len(names) else "")
+            if name in self.params:
+                value(name)
+        else:
+            pid = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
+            name = pid.rstrip("\x00")
+            if name in self.params:
+                self.params[name] = float(msg.param_value)
+                if name == "MPC_XY_CRUISE" and msg.param_value > 0:
+                    self.speed = float(msg.param_value)
+                value(name)

@@ -1,0 +1,366 @@
+"""The controller's MAVLink link on pymavlink, for asyncio.
+
+Concurrency model: one asyncio event loop drives every vehicle. Each `MavlinkLink` owns one reader
+thread that blocks on its socket/serial port, parses bytes with pymavlink and hands the messages to the
+loop (`call_soon_threadsafe`); everything else (state, waits, command retries, the 1 Hz heartbeat, the
+link-loss watchdog) runs as coroutines on the loop. Sending is a non-blocking datagram/serial write
+under a lock. A slow or silent vehicle only makes its own coroutines wait, never the others.
+
+Several vehicles may share one link: vehicles are told apart by system id, and every message the link
+sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
+locking onto the first heartbeat's system id).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+
+log = logging.getLogger(__name__)
+
+MAV = mavlink2
+# Messages a signing controller still accepts unsigned (radio status comes from the radio itself).
+_UNSIGNED_OK = {MAV.MAVLINK_MSG_ID_RADIO_STATUS}
+
+
+def command_name(command: int) -> str:
+    entry = MAV.enums["MAV_CMD"].get(command)
+    return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+class _Writer:
+    """File-like object pymavlink's MAVLink.send() writes packed bytes to."""
+
+    def __init__(self, transport: Transport):
+        self.transport = transport
+
+    def write(self, data: bytes) -> None:
+        self.transport.write(bytes(data))
+
+
+@dataclass
+class Peer:
+    """What the link knows about one vehicle (one system id)."""
+
+    sysid: int
+    compid: int = 1
+    heartbeat: Any = None
+    last_heartbeat: float = 0.0  # time.monotonic()
+    lost: bool = False
+    messages: dict[str, Any] = field(default_factory=dict)
+    received_at: dict[str, float] = field(default_factory=dict)
+    statustexts: deque = field(default_factory=lambda: deque(maxlen=50))
+    command_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+
+@dataclass
+class LinkStats:
+    received: int = 0
+    sent: int = 0
+    bad_data: int = 0
+
+
+class MavlinkLink:
+    """One MAVLink connection (UDP, TCP or serial) carrying one or more vehicles.
+
+    Use it as ``async with MavlinkLink("udpin:0.0.0.0:14550") as link: ...``.
+    """
+
+    def __init__(self, connection: str | Endpoint, *, system_id: int = 255, component_id: int = 190,
+                 signing_key: bytes | None = None, accept_unsigned: bool = False,
+                 heartbeat_type: int = MAV.MAV_TYPE_GCS, heartbeat_period: float = 1.0,
+                 lost_after: float = 3.0):
+        self.endpoint = connection if isinstance(connection, Endpoint) else parse_connection(connection)
+        if signing_key is not None and len(signing_key) != 32:
+            raise ValueError("a MAVLink signing key is 32 bytes")
+        self.system_id, self.component_id = system_id, component_id
+        self.signing_key, self.accept_unsigned = signing_key, accept_unsigned
+        self.heartbeat_type, self.heartbeat_period, self.lost_after = (
+            heartbeat_type, heartbeat_period, lost_after)
+        self.peers: dict[int, Peer] = {}
+        self.stats = LinkStats()
+        self.events: list[tuple[float, int, str]] = []  # (monotonic time, sysid, "seen"|"lost"|"back")
+        self._listeners: list[Callable[[Any], None]] = []
+        self._link_callbacks: list[Callable[[int, str], None]] = []
+        self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
+        self._bad_logged = -1e9
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._tasks: list[asyncio.Task] = []
+        self._transport: Transport | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.mav: Any = None
+
+    # --- life cycle ---------------------------------------------------------------------------------
+
+    async def open(self) -> "MavlinkLink":
+        self._loop = asyncio.get_running_loop()
+        self._transport = open_transport(self.endpoint)
+        self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id,
+                               srcComponent=self.component_id)
+        self.mav.robust_parsing = True
+        if self.signing_key is not None:
+            s = self.mav.signing
+            s.secret_key, s.sign_outgoing, s.link_id = self.signing_key, True, 0
+            s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
+            s.allow_unsigned_callback = (
+                (lambda _mav, _mid: True) if self.accept_unsigned
+                else (lambda _mav, msg_id: msg_id in _UNSIGNED_OK))
+        self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}",
+                                        daemon=True)
+        self._thread.start()
+        self._tasks = [asyncio.create_task(self._heartbeat_loop()),
+                       asyncio.create_task(self._watchdog_loop())]
+        return self
+
+    async def close(self) -> None:
+        for t in self._tasks:
+            t.cancel()
+        for t in self._tasks:
+            try:
+                await t
+            except asyncio.CancelledError:
+                pass
+        self._tasks = []
+        self._stop.set()
+        if self._thread is not None:
+            await asyncio.get_running_loop().run_in_executor(None, self._thread.join, 2.0)
+            self._thread = None
+        if self._transport is not None:
+            self._transport.close()
+            self._transport = None
+        for _, fut in self._waiters:
+            if not fut.done():
+                fut.cancel()
+        self._waiters.clear()
+
+    async def __aenter__(self) -> "MavlinkLink":
+        return await self.open()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    @property
+    def local_port(self) -> int | None:
+        return getattr(self._transport, "local_port", None)
+
+    # --- receiving ------------------------------------------------------------------------------------
+
+    def _reader(self) -> None:
+        assert self._transport is not None and self._loop is not None
+        while not self._stop.is_set():
+            try:
+                data = self._transport.read(0.1)
+            except (OSError, ValueError):
+                if self._stop.is_set():
+                    return
+                time.sleep(0.1)
+                continue
+            if not data:
+                continue
+            with self._lock:
+                msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+            if msgs:
+                try:
+                    self._loop.call_soon_threadsafe(self._dispatch, msgs)
+                except RuntimeError:  # loop closed while stopping
+                    return
+
+    def _dispatch(self, msgs: list) -> None:
+        now = time.monotonic()
+        for msg in msgs:
+            mtype = msg.get_type()
+            if mtype == "BAD_DATA":
+                self.stats.bad_data += 1
+                if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
+                    self._bad_logged = now
+                    log.warning("rejected bad MAVLink data on %s (%d so far): %s", self.endpoint,
+                                self.stats.bad_data, getattr(msg, "reason", ""))
+                continue
+            self.stats.received += 1
+            src = msg.get_srcSystem()
+            if mtype == "HEARTBEAT":
+                if msg.autopilot == MAV.MAV_AUTOPILOT_INVALID:
+                    pass  # another ground station or companion; not a vehicle
+                else:
+                    peer = self.peers.get(src)
+                    if peer is None:
+                        peer = self.peers[src] = Peer(sysid=src)
+                    event = "seen" if peer.heartbeat is None else ("back" if peer.lost else None)
+                    peer.compid = msg.get_srcComponent()
+                    peer.heartbeat, peer.last_heartbeat, peer.lost = msg, now, False
+                    if event:
+                        self._link_event(src, event)
+            peer = self.peers.get(src)
+            if peer is not None:
+                peer.messages[mtype] = msg
+                peer.received_at[mtype] = now
+                if mtype == "STATUSTEXT":
+                    peer.statustexts.append((now, msg.severity, msg.text))
+            for cb in list(self._listeners):
+                try:
+                    cb(msg)
+                except Exception:  # a listener's bug must not stop the link
+                    log.exception("MAVLink listener failed")
+            for pred, fut in list(self._waiters):
+                if fut.done():
+                    continue
+                try:
+                    if pred(msg):
+                        fut.set_result(msg)
+                except Exception as exc:
+                    fut.set_exception(exc)
+
+    def add_listener(self, callback: Callable[[Any], None]) -> None:
+        """Call callback(msg) on the event loop for every message received."""
+        self._listeners.append(callback)
+
+    def remove_listener(self, callback: Callable[[Any], None]) -> None:
+        if callback in self._listeners:
+            self._listeners.remove(callback)
+
+    def on_link_change(self, callback: Callable[[int, str], None]) -> None:
+        """Call callback(sysid, event) with event "seen", "lost" or "back"."""
+        self._link_callbacks.append(callback)
+
+    def _link_event(self, sysid: int, event: str) -> None:
+        self.events.append((time.monotonic(), sysid, event))
+        log.info("vehicle %d: %s", sysid, event)
+        for cb in list(self._link_callbacks):
+            try:
+                cb(sysid, event)
+            except Exception:
+                log.exception("link-change callback failed")
+
+    async def wait_message(self, predicate: Callable[[Any], bool], timeout: float) -> Any:
+        """The next received message for which predicate(msg) is true; asyncio.TimeoutError if none."""
+        fut: asyncio.Future = asyncio.get_running_loop().create_future()
+        entry = (predicate, fut)
+        self._waiters.append(entry)
+        try:
+            return await asyncio.wait_for(fut, timeout)
+        finally:
+            if entry in self._waiters:
+                self._waiters.remove(entry)
+
+    async def wait_until(self, condition: Callable[[], bool], timeout: float, what: str,
+                         vehicle: str) -> None:
+        """Wait until condition() holds (re-checked on every message and every 0.2 s)."""
+        deadline = time.monotonic() + timeout
+        while not condition():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise WaitTimeout(what, vehicle, timeout)
+            try:
+                await self.wait_message(lambda _m: condition(), min(left, 0.2))
+            except asyncio.TimeoutError:
+                pass
+
+    # --- link state ---------------------------------------------------------------------------------
+
+    def peer(self, sysid: int) -> Peer:
+        if sysid not in self.peers:
+            self.peers[sysid] = Peer(sysid=sysid, lost=True)
+        return self.peers[sysid]
+
+    def is_lost(self, sysid: int) -> bool:
+        p = self.peers.get(sysid)
+        return p is None or p.lost or p.heartbeat is None
+
+    async def wait_heartbeat(self, sysid: int, timeout: float = 10.0) -> Peer:
+        p = self.peers.get(sysid)
+        if p is None or p.heartbeat is None or p.lost:
+            await self.wait_until(lambda: not self.is_lost(sysid), timeout,
+                                  "a HEARTBEAT", f"vehicle {sysid}")
+        return self.peers[sysid]
+
+    async def _heartbeat_loop(self) -> None:
+        while True:
+            self.send(self.mav.heartbeat_encode(self.heartbeat_type, MAV.MAV_AUTOPILOT_INVALID,
+                                                0, 0, MAV.MAV_STATE_ACTIVE))
+            await asyncio.sleep(self.heartbeat_period)
+
+    async def _watchdog_loop(self) -> None:
+        while True:
+            now = time.monotonic()
+            for p in self.peers.values():
+                if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
+                    p.lost = True
+                    self._link_event(p.sysid, "lost")
+            await asyncio.sleep(0.1)
+
+    # --- sending --------------------------------------------------------------------------------------
+
+    def send(self, msg: Any) -> None:
+        """Pack (and sign, if a key is set) one message built with link.mav.<name>_encode(...)."""
+        if self._transport is None:
+            raise RuntimeError("the MAVLink link is not open")
+        with self._lock:
+            self.mav.send(msg)
+        self.stats.sent += 1
+
+    async def command(self, sysid: int, command: int, params: tuple[float, ...] = (), *,
+                      compid: int | None = None, timeout: float = 1.0, retries: int = 3,
+                      vehicle: str | None = None, use_int: bool = False, frame: int = 0) -> Any:
+        """Send COMMAND_LONG (or COMMAND_INT) and wait for its COMMAND_ACK, resending on timeout.
+
+        Returns the ACCEPTED ack. Raises CommandRejected on DENIED/FAILED/UNSUPPORTED/
+        TEMPORARILY_REJECTED/CANCELLED (with the vehicle's latest STATUSTEXT as the reason) and
+        CommandTimeout when no ack came after 1 + retries attempts.
+        """
+        name = command_name(command)
+        who = vehicle or f"vehicle {sysid}"
+        p = list(params) + [0.0] * (7 - len(params))
+        peer = self.peer(sysid)
+        target_comp = peer.compid if compid is None else compid
+        async with peer.command_lock:
+            started = time.monotonic()
+            attempts = 1 + max(0, retries)
+            for attempt in range(attempts):
+                if use_int:
+                    msg = self.mav.command_int_encode(sysid, target_comp, frame, command, 0, 0,
+                                                      p[0], p[1], p[2], p[3], int(p[4]), int(p[5]),
+                                                      p[6])
+                else:
+                    msg = self.mav.command_long_encode(sysid, target_comp, command, min(attempt, 255),
+                                                       *p)
+                self.send(msg)
+                deadline = time.monotonic() + timeout
+                while True:
+                    left = deadline - time.monotonic()
+                    if left <= 0:
+                        break
+                    try:
+                        ack = await self.wait_message(
+                            lambda m: (m.get_type() == "COMMAND_ACK" and m.get_srcSystem() == sysid
+                                       and m.command == command), left)
+                    except asyncio.TimeoutError:
+                        break
+                    if ack.result == MAV.MAV_RESULT_IN_PROGRESS:
+                        deadline = time.monotonic() + timeout
+                        continue
+                    if ack.result == MAV.MAV_RESULT_ACCEPTED:
+                        return ack
+                    await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
+                    reason = "; ".join(t for (ts, _sev, t) in peer.statustexts if ts >= started - 0.05)
+                    raise CommandRejected(name, who, MAV_RESULT_NAMES.get(ack.result, str(ack.result)),
+                                          reason)
+                log.info("%s: no ack to %s (attempt %d of %d)", who, name, attempt + 1, attempts)
+            raise CommandTimeout(name, who, attempts, timeout)
+
+    async def set_message_interval(self, sysid: int, message_id: int, rate_hz: float, **kw: Any) -> Any:
+        interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
+        return await self.command(sysid, MAV.MAV_CMD_SET_MESSAGE_INTERVAL,
+                                  (float(message_id), interval_us), **kw)

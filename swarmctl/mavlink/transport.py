@@ -1,0 +1,173 @@
+"""Byte transports for MAVLink: UDP in/out, TCP client, serial. Blocking, used from one reader thread.
+
+`udpin` listens and answers every peer it has heard from (like a radio channel shared by several
+vehicles): vehicles on one link tell messages apart by target_system, so nothing depends on which
+socket address a vehicle used. `udpout` sends to one address and reads answers on its own port.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+import threading
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mav_module
+
+from swarmctl.errors import InputError
+from swarmctl.mavlink.codec import Endpoint, parse_connection
+
+
+class Transport:
+    datagrams = False  # True when every read() returns whole packets (UDP)
+
+    def read(self, timeout: float) -> bytes:  # pragma: no cover - interface
+        """Bytes received within timeout seconds (b'' if none)."""
+        raise NotImplementedError
+
+    def write(self, data: bytes) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def close(self) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+class UdpTransport(Transport):
+    datagrams = True
+
+    def __init__(self, ep: Endpoint):
+        self.listen = ep.kind == "udpin"
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.peers: list[tuple[str, int]] = []
+        self._lock = threading.Lock()
+        try:
+            if self.listen:
+                self.sock.bind((ep.host, ep.port))
+            else:
+                self.peers = [(socket.gethostbyname(ep.host), ep.port)]
+                self.sock.bind(("0.0.0.0", 0))
+        except OSError as exc:
+            self.sock.close()
+            raise InputError(f"connection {str(ep)!r}: cannot open the UDP socket ({exc.strerror}); "
+                             "check the host and that the port is free") from None
+        self.local_port = self.sock.getsockname()[1]
+
+    def read(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.sock], [], [], timeout)
+        if not r:
+            return b""
+        try:
+            data, addr = self.sock.recvfrom(65535)
+        except OSError:
+            return b""
+        if self.listen and addr not in self.peers:
+            with self._lock:
+                self.peers.append(addr)
+        return data
+
+    def write(self, data: bytes) -> None:
+        with self._lock:
+            peers = list(self.peers)
+        for addr in peers:
+            try:
+                self.sock.sendto(data, addr)
+            except OSError:
+                pass  # a peer gone away (ICMP unreachable) is link loss, seen by heartbeat timeout
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class TcpTransport(Transport):
+    def __init__(self, ep: Endpoint):
+        try:
+            self.sock = socket.create_connection((ep.host, ep.port), timeout=5.0)
+        except OSError as exc:
+            raise InputError(f"connection {str(ep)!r}: cannot connect ({exc.strerror or exc}); "
+                             "check that the vehicle or simulator listens on that TCP port") from None
+        self.sock.setblocking(True)
+
+    def read(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.sock], [], [], timeout)
+        if not r:
+            return b""
+        try:
+            return self.sock.recv(65535)
+        except OSError:
+            return b""
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class SerialTransport(Transport):
+    def __init__(self, ep: Endpoint):
+        try:
+            import serial  # pyserial, pulled in by pymavlink for serial links
+        except ImportError:
+            raise InputError(f"connection {str(ep)!r}: serial links need pyserial; "
+                             "install it with `pip install pyserial`") from None
+        try:
+            self.port = serial.Serial(ep.device, ep.baud, timeout=0)
+        except (OSError, serial.SerialException) as exc:
+            raise InputError(f"connection {str(ep)!r}: cannot open the serial device ({exc}); "
+                             "check the device path, the baud rate and permissions") from None
+
+    def read(self, timeout: float) -> bytes:
+        r, _, _ = select.select([self.port.fileno()], [], [], timeout)
+        if not r:
+            return b""
+        return self.port.read(4096)
+
+    def write(self, data: bytes) -> None:
+        self.port.write(data)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+def parse_bytes(mav: Any, data: bytes, datagram: bool) -> list:
+    """Parse received bytes with a pymavlink MAVLink object; never raises.
+
+    Malformed input comes back as BAD_DATA messages. On a datagram link a packet never spans two
+    datagrams, so bytes left over at the end of one (a truncated or bogus packet) are dropped as
+    BAD_DATA instead of being glued to the next datagram, which would swallow valid packets.
+    """
+    try:
+        msgs = mav.parse_buffer(data) or []
+    except Exception as exc:  # pymavlink raises on some malformed input even in robust mode
+        msgs = [_bad_data(mav, bytearray(data), str(exc))]
+        _reset_parser(mav)
+    if datagram and mav.buf_len() > 0:
+        leftover = mav.buf[mav.buf_index:]
+        _reset_parser(mav)
+        msgs.append(_bad_data(mav, bytearray(leftover), "truncated packet at the end of a datagram"))
+    return msgs
+
+
+def _reset_parser(mav: Any) -> None:
+    mav.buf = bytearray()
+    mav.buf_index = 0
+    mav.expected_length = mav_module.HEADER_LEN_V1 + 2
+    mav.have_prefix_error = False
+
+
+def _bad_data(mav: Any, data: bytearray, reason: str) -> Any:
+    mav.total_receive_errors += 1
+    return mav_module.MAVLink_bad_data(data, reason)
+
+
+def open_transport(conn: str | Endpoint) -> Transport:
+    ep = conn if isinstance(conn, Endpoint) else parse_connection(conn)
+    if ep.kind in ("udpin", "udpout"):
+        return UdpTransport(ep)
+    if ep.kind == "tcp":
+        return TcpTransport(ep)
+    return SerialTransport(ep)

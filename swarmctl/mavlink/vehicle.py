@@ -1,0 +1,154 @@
+"""The one interface the controller flies every vehicle through, whatever its autopilot.
+
+Every method is a coroutine on the controller's asyncio loop (see network.py for the concurrency model),
+so many vehicles are flown at once with asyncio.gather / TaskGroup and a slow vehicle blocks only itself.
+"""
+
+from __future__ import annotations
+
+import abc
+import asyncio
+import time
+from dataclasses import dataclass
+
+from swarmctl.mavlink.codec import distance_m
+from swarmctl.mavlink.errors import WaitTimeout
+
+DEFAULT_ALTITUDE_M = 40.0
+
+
+@dataclass(frozen=True)
+class Position:
+    lat: float
+    lon: float
+    rel_alt: float  # metres above home
+    alt_amsl: float  # metres above mean sea level
+
+
+@dataclass(frozen=True)
+class Home:
+    lat: float
+    lon: float
+    alt_amsl: float
+
+
+@dataclass(frozen=True)
+class Target:
+    lat: float
+    lon: float
+    rel_alt: float
+
+
+class Vehicle(abc.ABC):
+    """A vehicle the controller commands. Implemented by ArduPilotVehicle and PX4Vehicle."""
+
+    name: str
+    autopilot: str  # "ardupilot" or "px4"
+    target: Target | None = None
+
+    # --- connection and readiness -------------------------------------------------------------------
+    @abc.abstractmethod
+    async def connect(self, timeout: float = 15.0) -> None:
+        """Wait for the vehicle's heartbeat and ask it for the telemetry the controller needs."""
+
+    @abc.abstractmethod
+    async def wait_ready(self, timeout: float = 60.0) -> None:
+        """Wait until the vehicle has a position, a home and would pass its pre-arm checks."""
+
+    @abc.abstractmethod
+    async def close(self) -> None:
+        """Stop background tasks and release the link (if this vehicle owns it)."""
+
+    # --- commands -------------------------------------------------------------------------------------
+    @abc.abstractmethod
+    async def set_mode(self, mode: str) -> None:
+        """Switch flight mode by name (GUIDED, LAND, RTL, ... for ArduPilot; HOLD, LAND, RTL for PX4)."""
+
+    @abc.abstractmethod
+    async def arm(self, timeout: float = 30.0) -> None:
+        """Arm, retrying while the autopilot still refuses (not ready yet) until timeout."""
+
+    @abc.abstractmethod
+    async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
+        """Ready, arm, take off and return once rel_alt is (nearly) reached."""
+
+    @abc.abstractmethod
+    async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+        """Send a position target (degrees, metres above home). Returns without waiting."""
+
+    @abc.abstractmethod
+    async def land(self) -> None:
+        """Land where the vehicle is."""
+
+    @abc.abstractmethod
+    async def rtl(self) -> None:
+        """Return to launch (and land there)."""
+
+    # --- state ----------------------------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def position(self) -> Position | None: ...
+
+    @property
+    @abc.abstractmethod
+    def home(self) -> Home | None: ...
+
+    @property
+    @abc.abstractmethod
+    def armed(self) -> bool: ...
+
+    @property
+    @abc.abstractmethod
+    def mode(self) -> str: ...
+
+    @property
+    @abc.abstractmethod
+    def lost(self) -> bool:
+        """True while the vehicle's heartbeats have stopped (link loss)."""
+
+    @property
+    def battery_remaining(self) -> int | None:
+        """Battery percentage, or None when unknown."""
+        return None
+
+    # --- shared helpers -------------------------------------------------------------------------------
+    def reached(self, tolerance: float = 1.0) -> bool:
+        """True when the vehicle is within tolerance metres (3-D) of the last target."""
+        pos, tgt = self.position, self.target
+        if pos is None or tgt is None:
+            return False
+        horiz = distance_m(pos.lat, pos.lon, tgt.lat, tgt.lon)
+        return (horiz**2 + (pos.rel_alt - tgt.rel_alt) ** 2) ** 0.5 <= tolerance
+
+    async def wait_reached(self, tolerance: float = 1.0, timeout: float = 120.0) -> None:
+        await self._poll(lambda: self.reached(tolerance), timeout, "the position target")
+
+    async def wait_landed(self, timeout: float = 120.0) -> None:
+        """Wait until the vehicle is on the ground and disarmed."""
+        await self._poll(self._landed, timeout, "landing")
+
+    def _landed(self) -> bool:
+        pos = self.position
+        return not self.armed and (pos is None or pos.rel_alt < 1.0)
+
+    async def _poll(self, cond, timeout: float, what: str, period: float = 0.05) -> None:
+        deadline = time.monotonic() + timeout
+        while not cond():
+            if time.monotonic() > deadline:
+                raise WaitTimeout(what, self.name, timeout, self._state_text())
+            await self._on_wait()
+            await asyncio.sleep(period)
+
+    async def _on_wait(self) -> None:
+        """Hook run while waiting (ArduPilot resends its position target here)."""
+
+    def _state_text(self) -> str:
+        pos = self.position
+        where = "no position" if pos is None else f"at {pos.lat:.7f},{pos.lon:.7f} {pos.rel_alt:.1f} m"
+        return f"mode {self.mode}, {'armed' if self.armed else 'disarmed'}, {where}"
+
+    async def __aenter__(self) -> "Vehicle":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
