@@ -18,8 +18,9 @@ def cli() -> None:
 from swarmctl.bench import bench_command  # noqa: E402
 from swarmctl.geo.cli import plan_command  # noqa: E402
 from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
+from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
 
-for command in (eval_command, train_command, bench_command, plan_command):
+for command in (eval_command, train_command, bench_command, plan_command, mock_vehicle_command):
     cli.add_command(command)
 
 
@@ -39,11 +40,6 @@ def main(argv: list[str] | None = None) -> int:
         exc.show()
         return exc.exit_code
     return 0
-
-
-from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
-
-cli.add_command(mock_vehicle_command)
 
 
 if __name__ == "__main__":
