@@ -151,7 +151,15 @@ class ArduPilotVehicle(Vehicle):
         await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
 
     async def takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
-        await self._command(MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, float(rel_alt))
+        try:
+            await self._command(MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, float(rel_alt))
+        except CommandRejected:
+            # When the first ACK is lost, the retry reaches a vehicle that is already climbing, and
+            # ArduCopter refuses a take-off in the air: that refusal means the first one worked.
+            await asyncio.sleep(0.3)  # let a position report of the climb arrive
+            pos = self.position
+            if not (self.armed and pos is not None and pos.rel_alt > 0.3):
+                raise
 
     async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
         start = time.monotonic()
