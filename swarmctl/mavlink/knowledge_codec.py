@@ -175,6 +175,8 @@ class KnowledgeCodec:
         cells = delta.cells
         if cells.size and ((cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()):
             raise ValueError(f"delta cells outside the {self.width} x {self.height} grid")
+        if np.unique(cells[:, 0] * self.height + cells[:, 1]).size != len(cells):
+            raise ValueError("a delta lists each cell once")
         parts = delta.split(MAX_DELTA_CELLS)
         out = []
         for i, part in enumerate(parts):
