@@ -7,11 +7,13 @@
 Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge.md):
 - every step the vehicle broadcasts a DELTA with the cells it explored itself since the last one
   (no relaying, like the simulator) and its position; a delta that does not fit is chunked;
-- every `digest_every` steps it broadcasts its DIGEST (explored bitmap) and, if it knows any
-  targets, a DETECTION listing them;
+- a vehicle that finds targets broadcasts a DETECTION at once; every `digest_every` steps it
+  broadcasts its DIGEST (explored bitmap) and, if it knows any targets, a DETECTION listing them;
 - a vehicle that receives a digest showing cells it lacks sends a REQUEST (bitmap of the missing
   cells) to the digest's sender, which answers with repair DELTAs of those cells (anything it knows,
-  its own or received), broadcast so every vehicle missing them benefits.
+  its own or received), broadcast so every vehicle missing them benefits; with `push` (default) a
+  vehicle that receives a digest lacking cells it knows also sends them at once, which shortens
+  convergence under loss (docs/knowledge.md).
 Every message carries the sender's position; positions merge newest-step-wins.
 
 Concurrency: none of its own. The owner calls `poll` (from its loop, or when `fileno()` is readable,
@@ -37,11 +39,12 @@ class KnowledgeExchange:
     """Knowledge + a UDP socket on `host` that sends to `peer` (a radio or a MAVLink router)."""
 
     def __init__(self, knowledge: Knowledge, mission_id: int, peer: Address, *, system_id: int | None = None,
-                 digest_every: int = 5, host: str = "127.0.0.1", port: int = 0):
+                 digest_every: int = 5, push: bool = True, host: str = "127.0.0.1", port: int = 0):
         self.knowledge = knowledge
         self.vehicle_id = knowledge.vehicle_id
         self.peer = peer
         self.digest_every = int(digest_every)
+        self.push = push
         sysid = knowledge.vehicle_id + 1 if system_id is None else system_id
         self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=sysid)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
@@ -81,9 +84,16 @@ class KnowledgeExchange:
         self.knowledge.set_position(step, cell, on_target)
         if cells is not None:
             self.knowledge.sense(cells, phi, obstacle)
-        if targets is not None and len(targets):
-            self.knowledge.add_targets(targets, step)
         self.publish(step)
+        if targets is not None and len(targets):
+            self.report_targets(targets, step)
+
+    def report_targets(self, cells, step: int) -> None:
+        """Record target cells found now and broadcast a DETECTION at once (repeated every digest)."""
+        self.knowledge.add_targets(cells, step)
+        pos = self.knowledge.own_position
+        cell, on_target = (pos.cell, pos.on_target) if pos else (None, False)
+        self._send(Detection(self.vehicle_id, step, cell, on_target, cells))
 
     def publish(self, step: int) -> None:
         """Broadcast the delta; on digest steps also the digest and the known targets."""
@@ -134,10 +144,17 @@ class KnowledgeExchange:
         assert isinstance(message, BitmapChunk)
         kn.merge_position(message.sender, message.position)
         theirs = chunk_mask(message, kn.width, kn.height)
-        if message.target is None:  # a digest: ask for what they have and we lack
+        if message.target is None:  # a digest: ask for what they have and we lack ...
             missing = theirs & ~kn.explored
             if missing.any():
                 self._request(message.sender, missing, message.index)
+            if self.push:  # ... and offer what we have and they lack
+                region = chunk_mask(BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)),
+                                    kn.width, kn.height)
+                answer = kn.cells_delta(region & ~theirs)
+                if len(answer):
+                    self._send(answer, repair=True)
+                    self.stats["pushes"] += 1
         elif message.target == self.vehicle_id:  # a request to us: send what we know of it
             answer = kn.cells_delta(theirs)
             if len(answer):

@@ -16,7 +16,8 @@ Other MAVLink traffic (and bytes that do not parse) is forwarded unchanged, or d
 frames when `lossy_other=True`.
 
 Randomness: one numpy generator per (seed, sender system id, receiver system id) link, so a run is
-reproducible whatever order the agents' datagrams interleave in.
+reproducible whatever order the agents' datagrams interleave in. A receiver's system id is learnt
+from its own frames or given to `add_peer`; until then its UDP port stands in (not reproducible).
 
 Concurrency: one background thread owns the socket (select with a short timeout); `close()` (or the
 context manager) stops it, joins it and closes the socket. Counters are read under a lock.
@@ -77,10 +78,14 @@ class Radio:
         self._thread.start()
 
     # ----- set-up -----------------------------------------------------------------------------------
-    def add_peer(self, address: Address) -> None:
+    def add_peer(self, address: Address, system_id: int | None = None) -> None:
+        """Forward to `address` from now on (agents are also learnt from their first datagram).
+        `system_id` names its loss streams before it has sent anything."""
         with self._lock:
             if address not in self._peers:
                 self._peers.append(address)
+            if system_id is not None:
+                self._sysid[address] = int(system_id)
 
     def set_position(self, address: Address, cell: tuple[int, int]) -> None:
         """Override the radio's idea of where the agent at `address` is (grid cell)."""
