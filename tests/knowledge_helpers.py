@@ -3,36 +3,19 @@
 from __future__ import annotations
 
 import contextlib
-import time
 
 import numpy as np
 
 from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
-from swarmctl.mavlink.radio import Radio
+from swarmctl.mavlink.radio import Radio, wait_quiet
 from swarmctl.world.channel import Channel
 from swarmctl.world.knowledge import Knowledge, disc_cells
 from swarmctl.world.moves import MOVES
 
 
 def settle(radio: Radio, agents: list[KnowledgeExchange], timeout: float = 10.0) -> None:
-    """Poll every agent until the radio has handled every datagram sent and every agent has read every
-    datagram delivered to it (answers sent while polling included). Fails after `timeout` seconds."""
-    deadline = time.monotonic() + timeout
-    while True:
-        for a in agents:
-            a.poll(0.0)
-        sent = sum(a.stats["sent_packets"] for a in agents)
-        received, delivered = radio.counts()
-        if received == sent and all(a.stats["received_packets"] == delivered.get(a.address, 0) for a in agents):
-            # nothing in flight: one more poll round must not send anything new
-            if sum(a.poll(0.0) for a in agents) == 0 and sum(a.stats["sent_packets"] for a in agents) == sent:
-                return
-        if time.monotonic() > deadline:
-            raise AssertionError(f"swarm did not settle: radio got {received}/{sent} datagrams, "
-                                 f"delivered {delivered}, agents read "
-                                 f"{[a.stats['received_packets'] for a in agents]}")
-        if agents:
-            agents[0].poll(0.002)
+    """Wait (on counters, with a timeout) until nothing is in flight; see radio.wait_quiet."""
+    wait_quiet(radio, agents, timeout)
 
 
 @contextlib.contextmanager

@@ -145,6 +145,10 @@ def _patch(payload, offset, fmt, value):
 def _bad_payloads(codec):
     pt, good = _valid(codec)
     digest_pt, digest = codec.encode(codec.digest(2, 7, (1, 1), False, np.ones((10, 10), bool))[0])[0]
+    few = np.zeros((10, 10), bool)
+    few[0, 1] = few[2, 3] = few[5, 5] = True  # offsets 1, 23, 55
+    list_pt, sparse = codec.encode(codec.digest(2, 7, (1, 1), False, few)[0])[0]
+    assert sparse[16] & 0x04 and len(sparse) == 17 + 1 + 2 * 3  # the cell-list form
     return {
         "payload_type": [(40, good), (PT_DELTA + 15, good)],
         "truncated": [(pt, good[:10]), (pt, b"")],
@@ -154,10 +158,12 @@ def _bad_payloads(codec):
         "grid": [(pt, _patch(good, 8, "<B", 11))],
         "chunks": [(pt, _patch(good, 12, "<B", 1)), (pt, _patch(good, 13, "<B", 0)),
                    (pt, _patch(good, 13, "<B", 200)), (digest_pt, _patch(digest, 13, "<B", 2))],
-        "cell": [(pt, _patch(good, 14, "<B", 10)), (pt, _patch(good, 18, "<H", 100))],
-        "flags": [(pt, _patch(good, 16, "<B", 0x80))],
+        "cell": [(pt, _patch(good, 14, "<B", 10)), (pt, _patch(good, 18, "<H", 100)),
+                 (list_pt, _patch(sparse, 18, "<H", 30)), (list_pt, _patch(sparse, 22, "<H", 100))],
+        "flags": [(pt, _patch(good, 16, "<B", 0x80)), (pt, _patch(good, 16, "<B", 0x04))],
         "length": [(pt, _patch(good, 17, "<B", 3)), (pt, good[:-1]), (pt, good + b"\x01"), (PT_DETECTION, good),
-                   (PT_REQUEST, digest[:17]), (digest_pt, digest[:-1])],
+                   (PT_REQUEST, digest[:17]), (digest_pt, digest[:-1]),
+                   (list_pt, sparse[:-2]), (list_pt, _patch(sparse, 17, "<B", 4))],
         "padding": [(digest_pt, digest[:-1] + b"\xff")],
     }
 
