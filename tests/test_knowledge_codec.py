@@ -111,6 +111,22 @@ def test_chunking_a_whole_50_x_50_map():
     assert sizes == [17 + 110, 17 + 110, 17 + 93]
 
 
+def test_the_largest_grid_carries_a_whole_map_in_one_delta():
+    k = Knowledge(181, 181, vehicle_id=1)
+    k.set_position(1, (180, 180))
+    xs, ys = np.meshgrid(np.arange(181), np.arange(181), indexing="ij")
+    k.sense(np.stack([xs.ravel(), ys.ravel()], 1), np.full(181 * 181, 0.5), np.zeros(181 * 181, bool))
+    codec = KnowledgeCodec(1, 181, 181)
+    payloads = codec.encode(k.take_delta())
+    assert len(payloads) == 911  # ceil(32761 / 36): numbered 255, 255, 255, 146
+    assert [HEADER.unpack_from(p)[8] for _, p in payloads[::255]] == [255, 255, 255, 146]
+    other = Knowledge(181, 181)
+    for pt, p in payloads:
+        other.merge(codec.decode(pt, p))
+    assert other.same_map(k) and codec.rejected == {}
+    assert len(codec.digest(1, 1, None, False, k.explored)) == 38
+
+
 def test_the_grid_limit_is_stated_and_enforced():
     KnowledgeCodec(0, 181, 181)
     KnowledgeCodec(0, 128, 256 - 1)

@@ -32,8 +32,9 @@ Bodies (byte offsets from 17; TUNNEL.payload_length = header + body exactly; byt
                offsets within the chunk, strictly increasing (the encoder picks the shorter form)
     DETECTION  u8 n (1..55), then n x { u8 x ; u8 y }
 
-Limits: W, H <= 255 and W * H <= 32768 (15-bit cell index): 181 x 181, 128 x 256, ... 50 x 50 needs
-3 digest chunks. Steps up to 2^32 - 1.
+Limits: W, H <= 255 and W * H <= 32768 (15-bit cell index): 181 x 181, 128 x 255, ... 50 x 50 needs
+3 digest chunks. Steps up to 2^32 - 1, vehicle ids 0..255, mission ids 0..65535. Delta chunks
+stand alone (each is a complete delta); a delta of more than 255 chunks is numbered in groups of 255.
 
 Decoding never raises on bad bytes: a payload that is truncated, oversized, of a foreign
 payload_type, another version, another mission, another grid, with cells outside the grid, bad
@@ -72,6 +73,7 @@ CELLS_PER_CHUNK = BITMAP_BYTES * 8  # 880
 MAX_SIDE = 255
 MAX_CELLS = 1 << 15
 MAX_VEHICLE_ID = 255
+MAX_CHUNKS = 255  # u8 chunk count
 COMPONENT_ID = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 _CELL_DTYPE = np.dtype([("cell", "<u2"), ("phi", "u1")])
 
@@ -140,7 +142,7 @@ class KnowledgeCodec:
                              f"sides <= {MAX_SIDE} and at most {MAX_CELLS} cells")
         self.mission_id, self.width, self.height = int(mission_id), int(width), int(height)
         self.chunks = digest_chunk_count(self.width, self.height)
-        self.max_delta_chunks = -(-self.width * self.height // MAX_DELTA_CELLS)
+        self.max_delta_chunks = min(MAX_CHUNKS, -(-self.width * self.height // MAX_DELTA_CELLS))
         self.rejected: Counter[str] = Counter()
         self.accepted: Counter[str] = Counter()
         self.ignored: Counter[str] = Counter()
@@ -187,7 +189,10 @@ class KnowledgeCodec:
             body = np.empty(len(part), dtype=_CELL_DTYPE)
             body["cell"] = (part.cells[:, 0] * self.height + part.cells[:, 1]) | (part.obstacle.astype(np.int64) << 15)
             body["phi"] = part.phi
-            head = self._header(delta.sender, delta.step, i, len(parts), delta.cell, delta.on_target, repair)
+            # chunks stand alone; past 255 of them the numbering starts a new group of up to 255
+            group = i // MAX_CHUNKS * MAX_CHUNKS
+            count = min(MAX_CHUNKS, len(parts) - group)
+            head = self._header(delta.sender, delta.step, i - group, count, delta.cell, delta.on_target, repair)
             out.append((PT_DELTA, head + bytes([len(part)]) + body.tobytes()))
         return out
 
