@@ -22,6 +22,11 @@ def _seed_payloads(codec: KnowledgeCodec, rng: np.random.Generator) -> list[tupl
         out += codec.encode(chunk)
     for chunk in codec.digest(3, 9, None, False, k.explored, target=1):
         out += codec.encode(chunk)
+    sparse = np.zeros((W, H), bool)
+    sparse.flat[rng.choice(W * H, 30, replace=False)] = True
+    for target in (None, 2):  # digests and requests in the cell-list form
+        for chunk in codec.digest(3, 9, (20, 30), False, sparse, target=target):
+            out += codec.encode(chunk)
     out += codec.encode(Detection(3, 9, (20, 30), True, [(4, 5), (49, 49)]))
     return out
 
