@@ -97,6 +97,15 @@ def test_newest_position_wins_and_old_reports_do_not_move_a_vehicle_back():
     assert k.positions[3].cell == (4, 5)
 
 
+def test_own_position_follows_the_vehicle_within_a_step_but_never_goes_back():
+    k = Knowledge(10, 10, vehicle_id=1)
+    k.set_position(4, (5, 5))
+    k.set_position(4, (2, 2))  # same step, corrected (e.g. a guarded move): the vehicle knows best
+    assert k.own_position == Position(4, (2, 2), False)
+    k.set_position(3, (9, 9))
+    assert k.own_position.cell == (2, 2)
+
+
 def test_explored_cells_are_only_added_and_truth_combines_by_max():
     k = Knowledge(4, 4)
     k.merge(Delta(1, 0, None, cells=[(1, 1)], phi=[10], obstacle=[False]))

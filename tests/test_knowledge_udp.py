@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from swarmctl.errors import InputError
 from swarmctl.mavlink.knowledge_codec import KnowledgeCodec
 from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
 from swarmctl.mavlink.radio import Radio
@@ -197,6 +198,13 @@ def test_radio_forwards_other_mavlink_unchanged_and_is_reproducible():
 
     a, b, c = run(11), run(11), run(12)
     assert a == b and a != c and 0 < sum(a) < 40
+
+
+def test_a_busy_port_is_an_input_error():
+    with Radio() as radio:
+        with KnowledgeExchange(Knowledge(5, 5, 0), 1, radio.address) as ex:
+            with pytest.raises(InputError, match="cannot open UDP"):
+                KnowledgeExchange(Knowledge(5, 5, 1), 1, radio.address, port=ex.address[1])
 
 
 def test_clean_shutdown_closes_sockets_and_stops_the_thread():

@@ -25,14 +25,18 @@ own id (echoes) are ignored. Bad bytes are counted in `codec.rejected`, never ra
 
 from __future__ import annotations
 
+import logging
 import select
 import socket
 from collections import Counter
 
 import numpy as np
 
+from swarmctl.errors import InputError
 from swarmctl.mavlink.knowledge_codec import BitmapChunk, KnowledgeCodec, chunk_mask
 from swarmctl.world.knowledge import Delta, Detection, Knowledge
+
+log = logging.getLogger("swarmctl.knowledge")
 
 Address = tuple[str, int]
 NEVER = np.iinfo(np.int64).max
@@ -62,9 +66,10 @@ class KnowledgeExchange:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
             self.sock.bind((host, port))
             self.sock.setblocking(False)
-        except OSError:
+        except OSError as exc:
             self.sock.close()
-            raise
+            raise InputError(f"knowledge link: cannot open UDP {host}:{port} ({exc.strerror}); "
+                             "check the address and that the port is free") from None
         self.address: Address = self.sock.getsockname()
 
     # ----- life cycle -------------------------------------------------------------------------------
@@ -83,7 +88,14 @@ class KnowledgeExchange:
     # ----- sending ----------------------------------------------------------------------------------
     def _send(self, message, repair: bool = False) -> None:
         for frame in self.codec.frames(message, repair):
-            self.sock.sendto(frame, self.peer)
+            try:
+                self.sock.sendto(frame, self.peer)
+            except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
+                if not self.stats["send_errors"]:
+                    log.warning("knowledge: cannot send to %s (%s); further failures are only counted",
+                                self.peer, exc)
+                self.stats["send_errors"] += 1
+                continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
 
@@ -144,6 +156,8 @@ class KnowledgeExchange:
                 data, _addr = self.sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
                 return handled
+            except ConnectionError:  # an ICMP error report from an earlier send: nothing to read
+                continue
             wait = 0.0
             handled += 1
             self.stats["received_packets"] += 1
