@@ -133,6 +133,7 @@ class KnowledgeExchange:
         self._learned_at[fresh] = step
 
     def publish_digest(self) -> None:
+        """Broadcast the explored-cell digest now (all chunks) and, if any, the known targets."""
         kn = self.knowledge
         pos = kn.own_position
         step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
