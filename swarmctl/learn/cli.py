@@ -62,6 +62,10 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
               help="Start from this checkpoint (transfer learning).")
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True)
 @click.option("--exploration", type=click.Choice(["softmax", "egreedy"]), default="softmax", show_default=True)
+@click.option("--temperature", nargs=2, type=float, default=(1.0, 0.1), show_default=True,
+              metavar="START END", help="Softmax exploration temperature, annealed linearly over the run.")
+@click.option("--epsilon", nargs=2, type=float, default=(1.0, 0.0), show_default=True,
+              metavar="START END", help="Epsilon-greedy exploration, annealed linearly over the run.")
 @click.option("--parallel", type=int, default=16, show_default=True, help="Episodes stepped together.")
 @click.option("--batch-size", type=int, default=64, show_default=True)
 @click.option("--updates-per-step", type=float, default=1.0, show_default=True,
@@ -75,7 +79,7 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
 @click.option("--eval-episodes", type=int, default=200, show_default=True)
 @click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
 @click.option("--progress/--no-progress", default=True)
-def train_command(episodes, seed, out, init, device, exploration, parallel, batch_size, updates_per_step, lr, prefill,
+def train_command(episodes, seed, out, init, device, exploration, temperature, epsilon, parallel, batch_size, updates_per_step, lr, prefill,
                   replay_capacity, target_every, plain_target, eval_every, eval_episodes, threads, progress, **kwargs):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
     import torch
@@ -93,19 +97,19 @@ def train_command(episodes, seed, out, init, device, exploration, parallel, batc
     require(target_every >= 1, f"--target-every {target_every} must be >= 1")
     require(eval_every >= 1 and eval_episodes >= 1, "--eval-every and --eval-episodes must be >= 1")
     require(threads >= 1, f"--threads {threads} must be >= 1")
+    require(min(temperature) > 0, f"--temperature {temperature[0]} {temperature[1]}: temperatures must be > 0")
+    require(all(0 <= e <= 1 for e in epsilon), f"--epsilon {epsilon[0]} {epsilon[1]}: epsilons must be in [0, 1]")
     require(world.window >= 8, f"--window {world.window}: the network needs F >= 8")
     if init is not None:
         require(init.is_file(), f"--init {init}: no such checkpoint file")
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
-    if prefill == 0:
-        prefill_note = "no prefill: the replay starts with the first training samples"
-        click.echo(prefill_note)
     cfg = TrainConfig(episodes=episodes, parallel_envs=parallel, batch_size=batch_size,
-                      updates_per_step=updates_per_step, lr=lr, prefill_episodes=max(prefill, 1),
+                      updates_per_step=updates_per_step, lr=lr, prefill_episodes=prefill,
                       replay_capacity=replay_capacity, target_update_every=target_every, double=not plain_target,
-                      exploration=exploration, eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
+                      exploration=exploration, temperature_start=temperature[0], temperature_end=temperature[1],
+                      epsilon_start=epsilon[0], epsilon_end=epsilon[1], eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
     final = meta["final_eval"] or {}
     click.echo(f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "

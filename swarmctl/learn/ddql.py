@@ -182,7 +182,8 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             joint_steps += 1
             samples += p * env.uavs
 
-            update_credit += cfg.updates_per_step
+            if replay.size >= cfg.batch_size:  # without prefill, learning waits for one batch of samples
+                update_credit += cfg.updates_per_step
             while update_credit >= 1.0:
                 update_credit -= 1.0
                 # one double-DQN gradient step
