@@ -1,0 +1,355 @@
+"""The swarm's knowledge on the wire: standard MAVLink 2 TUNNEL messages (id 385, 128-byte payload).
+
+No custom dialect: every message is a TUNNEL with target_system 0 (broadcast), so stock autopilots,
+radios and routers forward it. The message kind is TUNNEL.payload_type, one value per kind from the
+private block 32800..32815 (>= 32768, the range MAVLink leaves for private use):
+
+    32800  DELTA       cells newly explored (quantised phi, obstacle bit) + the sender's position
+    32801  DIGEST      the sender's explored-cell bitmap, one chunk per message
+    32802  REQUEST     "send me these cells": a bitmap chunk addressed to one vehicle
+    32803  DETECTION   target cells found by the sender
+
+Every payload starts with the same 17-byte header (little endian):
+
+    0  u8   format version (FORMAT_VERSION = 1)
+    1  u16  mission id (two swarms on one channel never mix knowledge)
+    3  u8   sender vehicle id
+    4  u32  step
+    8  u8   grid width W     9  u8  grid height H   (must match the receiver's grid)
+    10 u16  sequence number (per sender, all kinds, wraps)
+    12 u8   chunk index      13 u8  chunk count     (index < count)
+    14 u8   sender x         15 u8  sender y        (255, 255: position unknown)
+    16 u8   flags: bit 0 on target, bit 1 repair (answer to a request); other bits 0
+
+Bodies (byte offsets from 17; TUNNEL.payload_length = header + body exactly; bytes after it are 0):
+
+    DELTA      u8 n (<= 36), then n x { u16 cell = x * H + y, bit 15 = obstacle ; u8 phi * 255 }
+    DIGEST     bitmap of cells [i * 880, (i + 1) * 880) of the flat index x * H + y, bit k of the
+               chunk in byte k // 8 at bit k % 8 (LSB first); padding bits 0; count = ceil(W H / 880)
+    REQUEST    u8 target vehicle id, then a bitmap chunk laid out like DIGEST's
+    DETECTION  u8 n (1..55), then n x { u8 x ; u8 y }
+
+Limits: W, H <= 255 and W * H <= 32768 (15-bit cell index): 181 x 181, 128 x 256, ... 50 x 50 needs
+3 digest chunks. Steps up to 2^32 - 1.
+
+Decoding never raises on bad bytes: a payload that is truncated, oversized, of a foreign
+payload_type, another version, another mission, another grid, with cells outside the grid, bad
+chunk numbers, a body length that does not match its count, non-zero padding or reserved flag bits
+is rejected, counted in `rejected` (a Counter by reason) and logged once per reason.
+"""
+
+from __future__ import annotations
+
+import logging
+import struct
+import zlib
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from swarmctl.world.knowledge import Delta, Detection, Report
+
+log = logging.getLogger("swarmctl.knowledge")
+
+PAYLOAD_TYPE_BLOCK = range(32800, 32816)  # reserved for swarmctl; 32804..32815 unused
+PT_DELTA, PT_DIGEST, PT_REQUEST, PT_DETECTION = 32800, 32801, 32802, 32803
+KIND_NAMES = {PT_DELTA: "delta", PT_DIGEST: "digest", PT_REQUEST: "request", PT_DETECTION: "detection"}
+FORMAT_VERSION = 1
+PAYLOAD_SIZE = 128
+HEADER = struct.Struct("<BHBIBBHBBBBB")
+HEADER_SIZE = HEADER.size  # 17
+NO_CELL = 255
+FLAG_ON_TARGET, FLAG_REPAIR = 0x01, 0x02
+MAX_DELTA_CELLS = (PAYLOAD_SIZE - HEADER_SIZE - 1) // 3  # 36
+MAX_DETECTIONS = (PAYLOAD_SIZE - HEADER_SIZE - 1) // 2  # 55
+BITMAP_BYTES = PAYLOAD_SIZE - HEADER_SIZE - 1  # 110 (REQUEST needs one byte for its target)
+CELLS_PER_CHUNK = BITMAP_BYTES * 8  # 880
+MAX_SIDE = 255
+MAX_CELLS = 1 << 15
+MAX_VEHICLE_ID = 255
+COMPONENT_ID = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+_CELL_DTYPE = np.dtype([("cell", "<u2"), ("phi", "u1")])
+
+
+def mission_id_from_name(name: str) -> int:
+    """A 16-bit mission id from a mission name (CRC-32 folded), for swarms that share a channel."""
+    crc = zlib.crc32(name.encode("utf-8"))
+    return (crc ^ (crc >> 16)) & 0xFFFF
+
+
+def digest_chunk_count(width: int, height: int) -> int:
+    return -(-width * height // CELLS_PER_CHUNK)
+
+
+@dataclass(eq=False)
+class BitmapChunk(Report):
+    """One chunk of an explored-cell bitmap: a DIGEST (target None) or a REQUEST (target set).
+
+    bits[k] is cell index * CELLS_PER_CHUNK + k (flat index x * H + y)."""
+
+    index: int = 0
+    count: int = 1
+    bits: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    target: int | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        self.bits = np.asarray(self.bits, dtype=bool).reshape(-1)
+
+    def __eq__(self, other: object) -> bool:
+        return (self._same_report(other) and (self.index, self.count, self.target) == (other.index, other.count, other.target)
+                and np.array_equal(self.bits, other.bits))
+
+
+Message = Delta | BitmapChunk | Detection
+
+
+def bitmap_chunks(mask: np.ndarray) -> list[np.ndarray]:
+    """The flat (x * H + y) bitmap of a (W, H) mask cut into CELLS_PER_CHUNK pieces."""
+    flat = np.asarray(mask, dtype=bool).reshape(-1)
+    return [flat[i : i + CELLS_PER_CHUNK] for i in range(0, flat.size, CELLS_PER_CHUNK)]
+
+
+def chunk_mask(chunk: BitmapChunk, width: int, height: int) -> np.ndarray:
+    """A (W, H) mask holding only the chunk's bits."""
+    flat = np.zeros(width * height, dtype=bool)
+    start = chunk.index * CELLS_PER_CHUNK
+    flat[start : start + chunk.bits.size] = chunk.bits
+    return flat.reshape(width, height)
+
+
+class KnowledgeCodec:
+    """Encode and decode the four knowledge payloads for one mission and grid.
+
+    Payload level: `encode(message) -> [(payload_type, payload bytes)]`, `decode(payload_type, payload)`.
+    Wire level (real MAVLink 2 TUNNEL frames built and parsed by pymavlink): `frame(...)`,
+    `parse_datagram(bytes)`. Rejections are counted in `self.rejected`, accepted messages in
+    `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
+
+    def __init__(self, mission_id: int, width: int, height: int, system_id: int = 1,
+                 component_id: int = COMPONENT_ID):
+        if not 0 <= mission_id <= 0xFFFF:
+            raise ValueError(f"mission id {mission_id} must fit in 16 bits (0..65535)")
+        if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE and width * height <= MAX_CELLS):
+            raise ValueError(f"grid {width} x {height} is too large for the knowledge codec: "
+                             f"sides <= {MAX_SIDE} and at most {MAX_CELLS} cells")
+        self.mission_id, self.width, self.height = int(mission_id), int(width), int(height)
+        self.chunks = digest_chunk_count(self.width, self.height)
+        self.max_delta_chunks = -(-self.width * self.height // MAX_DELTA_CELLS)
+        self.rejected: Counter[str] = Counter()
+        self.accepted: Counter[str] = Counter()
+        self.ignored: Counter[str] = Counter()
+        self._seq = 0
+        self._tx = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+        self._rx = mavlink2.MAVLink(None)
+        self._rx.robust_parsing = True
+        self.last_repair = False  # the repair flag of the last accepted payload
+
+    # ----- encoding ---------------------------------------------------------------------------------
+    def _header(self, sender: int, step: int, chunk: int, chunks: int, cell, on_target: bool, repair: bool) -> bytes:
+        if not 0 <= sender <= MAX_VEHICLE_ID:
+            raise ValueError(f"vehicle id {sender} must be 0..{MAX_VEHICLE_ID}")
+        if not 0 <= step <= 0xFFFFFFFF:
+            raise ValueError(f"step {step} does not fit in 32 bits")
+        x, y = (NO_CELL, NO_CELL) if cell is None else cell
+        if cell is not None and not (0 <= x < self.width and 0 <= y < self.height):
+            raise ValueError(f"position {cell} is outside the {self.width} x {self.height} grid")
+        flags = (FLAG_ON_TARGET if on_target else 0) | (FLAG_REPAIR if repair else 0)
+        seq, self._seq = self._seq, (self._seq + 1) & 0xFFFF
+        return HEADER.pack(FORMAT_VERSION, self.mission_id, sender, step, self.width, self.height, seq,
+                           chunk, chunks, x, y, flags)
+
+    def encode(self, message: Message, repair: bool = False) -> list[tuple[int, bytes]]:
+        """Payloads (payload_type, bytes <= 128) for one message; deltas and detections are chunked."""
+        if isinstance(message, Delta):
+            return self._encode_delta(message, repair)
+        if isinstance(message, Detection):
+            return self._encode_detection(message)
+        if isinstance(message, BitmapChunk):
+            return [self._encode_bitmap(message)]
+        raise TypeError(f"cannot encode a {type(message).__name__}")
+
+    def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes]]:
+        cells = delta.cells
+        if cells.size and ((cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()):
+            raise ValueError(f"delta cells outside the {self.width} x {self.height} grid")
+        if np.unique(cells[:, 0] * self.height + cells[:, 1]).size != len(cells):
+            raise ValueError("a delta lists each cell once")
+        parts = delta.split(MAX_DELTA_CELLS)
+        out = []
+        for i, part in enumerate(parts):
+            body = np.empty(len(part), dtype=_CELL_DTYPE)
+            body["cell"] = (part.cells[:, 0] * self.height + part.cells[:, 1]) | (part.obstacle.astype(np.int64) << 15)
+            body["phi"] = part.phi
+            head = self._header(delta.sender, delta.step, i, len(parts), delta.cell, delta.on_target, repair)
+            out.append((PT_DELTA, head + bytes([len(part)]) + body.tobytes()))
+        return out
+
+    def _encode_detection(self, det: Detection) -> list[tuple[int, bytes]]:
+        t = det.targets
+        if not len(t):
+            raise ValueError("a detection needs at least one target cell")
+        if (t < 0).any() or (t[:, 0] >= self.width).any() or (t[:, 1] >= self.height).any():
+            raise ValueError(f"detection cells outside the {self.width} x {self.height} grid")
+        pieces = [t[i : i + MAX_DETECTIONS] for i in range(0, len(t), MAX_DETECTIONS)]
+        return [(PT_DETECTION, self._header(det.sender, det.step, i, len(pieces), det.cell, det.on_target, False)
+                 + bytes([len(p)]) + p.astype(np.uint8).tobytes()) for i, p in enumerate(pieces)]
+
+    def _encode_bitmap(self, chunk: BitmapChunk) -> tuple[int, bytes]:
+        expected = min(CELLS_PER_CHUNK, self.width * self.height - chunk.index * CELLS_PER_CHUNK)
+        if chunk.count != self.chunks or not 0 <= chunk.index < chunk.count or chunk.bits.size != expected:
+            raise ValueError(f"bitmap chunk {chunk.index}/{chunk.count} of {chunk.bits.size} bits does not fit "
+                             f"a {self.width} x {self.height} grid ({self.chunks} chunks)")
+        head = self._header(chunk.sender, chunk.step, chunk.index, chunk.count, chunk.cell, chunk.on_target, False)
+        bits = np.packbits(chunk.bits, bitorder="little").tobytes()
+        if chunk.target is None:
+            return PT_DIGEST, head + bits
+        return PT_REQUEST, head + bytes([chunk.target]) + bits
+
+    def digest(self, sender: int, step: int, cell, on_target: bool, explored: np.ndarray,
+               target: int | None = None, only_nonempty: bool = False) -> list[BitmapChunk]:
+        """The chunks of an explored-cell bitmap: a digest, or a request to `target`."""
+        return [BitmapChunk(sender, step, cell, on_target, i, self.chunks, bits, target)
+                for i, bits in enumerate(bitmap_chunks(explored)) if not only_nonempty or bits.any()]
+
+    # ----- decoding ---------------------------------------------------------------------------------
+    def _reject(self, reason: str, detail: str = "") -> None:
+        if reason not in self.rejected:
+            log.warning("knowledge: rejected a TUNNEL payload (%s)%s; further ones are only counted",
+                        reason, f": {detail}" if detail else "")
+        self.rejected[reason] += 1
+        return None
+
+    def decode(self, payload_type: int, payload: bytes | bytearray | list[int], payload_length: int | None = None
+               ) -> Message | None:
+        """One TUNNEL payload to a message, or None (counted in `rejected`). Never raises on bad bytes.
+
+        `payload_length` is TUNNEL.payload_length; None means len(payload)."""
+        try:
+            data = bytes(payload)
+        except (TypeError, ValueError):
+            return self._reject("payload")
+        if payload_type not in KIND_NAMES:
+            return self._reject("payload_type", str(payload_type))
+        n = len(data) if payload_length is None else int(payload_length)
+        if len(data) > PAYLOAD_SIZE or n > PAYLOAD_SIZE:
+            return self._reject("oversized", f"{max(n, len(data))} bytes")
+        if n > len(data) or n < HEADER_SIZE:
+            return self._reject("truncated", f"{n} bytes")
+        if any(data[n:]):
+            return self._reject("oversized", "non-zero bytes after payload_length")
+        version, mission, sender, step, w, h, _seq, chunk, chunks, x, y, flags = HEADER.unpack_from(data)
+        if version != FORMAT_VERSION:
+            return self._reject("version", str(version))
+        if mission != self.mission_id:
+            return self._reject("mission", str(mission))
+        if (w, h) != (self.width, self.height):
+            return self._reject("grid", f"{w} x {h}")
+        if flags & ~(FLAG_ON_TARGET | FLAG_REPAIR):
+            return self._reject("flags", hex(flags))
+        if (x, y) == (NO_CELL, NO_CELL):
+            cell = None
+        elif x < w and y < h:
+            cell = (x, y)
+        else:
+            return self._reject("cell", f"position ({x}, {y})")
+        if chunks == 0 or chunk >= chunks:
+            return self._reject("chunks", f"{chunk}/{chunks}")
+        on_target = bool(flags & FLAG_ON_TARGET)
+        body = data[HEADER_SIZE:n]
+        if payload_type == PT_DELTA:
+            msg = self._decode_delta(body, sender, step, cell, on_target, chunks)
+        elif payload_type == PT_DETECTION:
+            msg = self._decode_detection(body, sender, step, cell, on_target)
+        else:
+            msg = self._decode_bitmap(payload_type, body, sender, step, cell, on_target, chunk, chunks)
+        if msg is not None:
+            self.accepted[KIND_NAMES[payload_type]] += 1
+            self.last_repair = bool(flags & FLAG_REPAIR)
+        return msg
+
+    def _decode_delta(self, body: bytes, sender, step, cell, on_target, chunks) -> Delta | None:
+        if chunks > self.max_delta_chunks:
+            return self._reject("chunks", f"{chunks} delta chunks for {self.width * self.height} cells")
+        if not body or len(body) != 1 + 3 * body[0] or body[0] > MAX_DELTA_CELLS:
+            return self._reject("length", "delta body does not match its cell count")
+        rec = np.frombuffer(body, dtype=_CELL_DTYPE, offset=1)
+        idx = rec["cell"] & 0x7FFF
+        if idx.size and int(idx.max()) >= self.width * self.height:
+            return self._reject("cell", "delta cell outside the grid")
+        cells = np.stack([idx // self.height, idx % self.height], axis=1).astype(np.int64)
+        return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), (rec["cell"] >> 15).astype(bool))
+
+    def _decode_detection(self, body: bytes, sender, step, cell, on_target) -> Detection | None:
+        if not body or body[0] == 0 or body[0] > MAX_DETECTIONS or len(body) != 1 + 2 * body[0]:
+            return self._reject("length", "detection body does not match its count")
+        t = np.frombuffer(body, dtype=np.uint8, offset=1).reshape(-1, 2).astype(np.int64)
+        if (t[:, 0] >= self.width).any() or (t[:, 1] >= self.height).any():
+            return self._reject("cell", "detection outside the grid")
+        return Detection(sender, step, cell, on_target, t)
+
+    def _decode_bitmap(self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks) -> BitmapChunk | None:
+        if chunks != self.chunks:
+            return self._reject("chunks", f"{chunks} bitmap chunks, the grid needs {self.chunks}")
+        target = None
+        if ptype == PT_REQUEST:
+            if not body:
+                return self._reject("length", "request without a target")
+            target, body = body[0], body[1:]
+        nbits = min(CELLS_PER_CHUNK, self.width * self.height - chunk * CELLS_PER_CHUNK)
+        if len(body) != -(-nbits // 8):
+            return self._reject("length", f"bitmap chunk of {len(body)} bytes, expected {-(-nbits // 8)}")
+        bits = np.unpackbits(np.frombuffer(body, dtype=np.uint8), bitorder="little").astype(bool)
+        if bits[nbits:].any():
+            return self._reject("padding", "bits beyond the grid are set")
+        return BitmapChunk(sender, step, cell, on_target, chunk, chunks, bits[:nbits], target)
+
+    # ----- MAVLink 2 frames -------------------------------------------------------------------------
+    def frame(self, payload_type: int, payload: bytes) -> bytes:
+        """A MAVLink 2 TUNNEL frame (broadcast: target_system 0, target_component 0)."""
+        padded = list(payload) + [0] * (PAYLOAD_SIZE - len(payload))
+        msg = mavlink2.MAVLink_tunnel_message(0, 0, payload_type, len(payload), padded)
+        buf = msg.pack(self._tx)
+        self._tx.seq = (self._tx.seq + 1) % 256
+        return bytes(buf)
+
+    def frames(self, message: Message, repair: bool = False) -> list[bytes]:
+        return [self.frame(pt, p) for pt, p in self.encode(message, repair)]
+
+    def parse_datagram(self, data: bytes) -> list[Message]:
+        """Every knowledge message in one UDP datagram; anything else is counted, never raised."""
+        out: list[Message] = []
+        try:
+            msgs = self._rx.parse_buffer(bytes(data)) or []
+        except Exception as exc:  # pymavlink can raise on malformed input even when robust
+            msgs = []
+            self._reject("mavlink", str(exc))
+        if self._rx.buf_len():
+            self._reject("mavlink", "frame cut short at the end of a datagram")
+            self._rx.buf, self._rx.buf_index = bytearray(), 0
+            self._rx.expected_length = mavlink2.HEADER_LEN_V1 + 2
+        for m in msgs:
+            if isinstance(m, mavlink2.MAVLink_bad_data):
+                self._reject("mavlink", str(getattr(m, "reason", "bad data")))
+                continue
+            if m.get_type() != "TUNNEL":
+                self.ignored[m.get_type()] += 1
+                continue
+            if m.payload_type not in PAYLOAD_TYPE_BLOCK:
+                self.ignored["TUNNEL other payload_type"] += 1
+                continue
+            decoded = self.decode(m.payload_type, bytes(m.payload), m.payload_length)
+            if decoded is not None:
+                out.append(decoded)
+        return out
+
+
+def frame_sender_cell(frame_payload: bytes) -> tuple[int, int, tuple[int, int] | None] | None:
+    """(mission id, sender, cell) read from a knowledge payload's header without full validation
+    (used by the radio to learn positions); None when the payload is too short or another version."""
+    if len(frame_payload) < HEADER_SIZE or frame_payload[0] != FORMAT_VERSION:
+        return None
+    _v, mission, sender, _step, _w, _h, _s, _c, _n, x, y, _f = HEADER.unpack_from(frame_payload)
+    return mission, sender, None if (x, y) == (NO_CELL, NO_CELL) else (x, y)

@@ -1,0 +1,180 @@
+"""One vehicle's side of the knowledge sharing: a Knowledge, a UDP MAVLink endpoint and the protocol.
+
+    ex = KnowledgeExchange(Knowledge(50, 50, vehicle_id=2), mission_id=7, peer=radio.address)
+    ex.step(step, cell, on_target, cells, phi, obstacle)   # sense, then publish the delta (+ digest)
+    ex.poll(timeout=0.0)                                   # merge what arrived, answer requests
+
+Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge.md):
+- every step the vehicle broadcasts a DELTA with the cells it explored itself since the last one
+  (no relaying, like the simulator) and its position; a delta that does not fit is chunked;
+- a vehicle that finds targets broadcasts a DETECTION at once; every `digest_every` steps it
+  broadcasts its DIGEST (explored bitmap) and, if it knows any targets, a DETECTION listing them;
+- a vehicle that receives a digest showing cells it lacks sends a REQUEST (bitmap of the missing
+  cells) to the digest's sender, which answers with repair DELTAs of those cells (anything it knows,
+  its own or received), broadcast so every vehicle missing them benefits; with `push` (default) a
+  vehicle that receives a digest lacking cells it knows also sends them at once, which shortens
+  convergence under loss (docs/knowledge.md).
+Every message carries the sender's position; positions merge newest-step-wins.
+
+Concurrency: none of its own. The owner calls `poll` (from its loop, or when `fileno()` is readable,
+e.g. asyncio's loop.add_reader); sends happen in the caller's thread. Messages from this vehicle's
+own id (echoes) are ignored. Bad bytes are counted in `codec.rejected`, never raised.
+"""
+
+from __future__ import annotations
+
+import select
+import socket
+from collections import Counter
+
+import numpy as np
+
+from swarmctl.mavlink.knowledge_codec import BitmapChunk, KnowledgeCodec, chunk_mask
+from swarmctl.world.knowledge import Delta, Detection, Knowledge
+
+Address = tuple[str, int]
+
+
+class KnowledgeExchange:
+    """Knowledge + a UDP socket on `host` that sends to `peer` (a radio or a MAVLink router)."""
+
+    def __init__(self, knowledge: Knowledge, mission_id: int, peer: Address, *, system_id: int | None = None,
+                 digest_every: int = 5, push: bool = True, host: str = "127.0.0.1", port: int = 0):
+        self.knowledge = knowledge
+        self.vehicle_id = knowledge.vehicle_id
+        self.peer = peer
+        self.digest_every = int(digest_every)
+        self.push = push
+        sysid = knowledge.vehicle_id + 1 if system_id is None else system_id
+        self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=sysid)
+        self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self.sock.bind((host, port))
+            self.sock.setblocking(False)
+        except OSError:
+            self.sock.close()
+            raise
+        self.address: Address = self.sock.getsockname()
+
+    # ----- life cycle -------------------------------------------------------------------------------
+    def fileno(self) -> int:
+        return self.sock.fileno()
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> KnowledgeExchange:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ----- sending ----------------------------------------------------------------------------------
+    def _send(self, message, repair: bool = False) -> None:
+        for frame in self.codec.frames(message, repair):
+            self.sock.sendto(frame, self.peer)
+            self.stats["sent_packets"] += 1
+            self.stats["sent_bytes"] += len(frame)
+
+    def step(self, step: int, cell: tuple[int, int], on_target: bool = False, cells=None, phi=None,
+             obstacle=None, targets=None) -> None:
+        """One decision step: record the own position, sense `cells` (with their phi and obstacle
+        flags), note target cells found, and publish."""
+        self.knowledge.set_position(step, cell, on_target)
+        if cells is not None:
+            self.knowledge.sense(cells, phi, obstacle)
+        self.publish(step)
+        if targets is not None and len(targets):
+            self.report_targets(targets, step)
+
+    def report_targets(self, cells, step: int) -> None:
+        """Record target cells found now and broadcast a DETECTION at once (repeated every digest)."""
+        self.knowledge.add_targets(cells, step)
+        pos = self.knowledge.own_position
+        cell, on_target = (pos.cell, pos.on_target) if pos else (None, False)
+        self._send(Detection(self.vehicle_id, step, cell, on_target, cells))
+
+    def publish(self, step: int) -> None:
+        """Broadcast the delta; on digest steps also the digest and the known targets."""
+        self._send(self.knowledge.take_delta())
+        self.stats["deltas"] += 1
+        if self.digest_every > 0 and step % self.digest_every == 0:
+            self.publish_digest()
+
+    def publish_digest(self) -> None:
+        kn = self.knowledge
+        pos = kn.own_position
+        step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
+        for chunk in self.codec.digest(self.vehicle_id, step, cell, on_target, kn.explored):
+            self._send(chunk)
+        self.stats["digests"] += 1
+        if kn.targets:
+            self._send(Detection(self.vehicle_id, step, cell, on_target, np.array(sorted(kn.targets))))
+
+    # ----- receiving --------------------------------------------------------------------------------
+    def poll(self, timeout: float = 0.0) -> int:
+        """Handle every datagram waiting (waiting up to `timeout` s for the first). Returns how many."""
+        handled = 0
+        wait = timeout
+        while True:
+            if wait > 0:
+                ready, _, _ = select.select([self.sock], [], [], wait)
+                if not ready:
+                    return handled
+            try:
+                data, _addr = self.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return handled
+            wait = 0.0
+            handled += 1
+            self.stats["received_packets"] += 1
+            self.stats["received_bytes"] += len(data)
+            for message in self.codec.parse_datagram(data):
+                self._handle(message)
+
+    def _handle(self, message) -> None:
+        kn = self.knowledge
+        if message.sender == self.vehicle_id:
+            self.stats["own_echo"] += 1
+            return
+        if isinstance(message, (Delta, Detection)):
+            kn.merge(message)
+            return
+        assert isinstance(message, BitmapChunk)
+        kn.merge_position(message.sender, message.position)
+        theirs = chunk_mask(message, kn.width, kn.height)
+        if message.target is None:  # a digest: ask for what they have and we lack ...
+            missing = theirs & ~kn.explored
+            if missing.any():
+                self._request(message.sender, missing, message.index)
+            if self.push:  # ... and offer what we have and they lack
+                region = chunk_mask(BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)),
+                                    kn.width, kn.height)
+                answer = kn.cells_delta(region & ~theirs)
+                if len(answer):
+                    self._send(answer, repair=True)
+                    self.stats["pushes"] += 1
+        elif message.target == self.vehicle_id:  # a request to us: send what we know of it
+            answer = kn.cells_delta(theirs)
+            if len(answer):
+                self._send(answer, repair=True)
+                self.stats["repairs"] += 1
+
+    def _request(self, target: int, missing: np.ndarray, index: int) -> None:
+        kn = self.knowledge
+        pos = kn.own_position
+        step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
+        chunk = self.codec.digest(self.vehicle_id, step, cell, on_target, missing, target=target)[index]
+        self._send(chunk)
+        self.stats["requests"] += 1
+
+    # ----- counters ---------------------------------------------------------------------------------
+    def counters(self) -> dict[str, int]:
+        """sent/received packets and bytes, deltas, digests, requests, repairs, accepted per kind,
+        rejected per reason (prefixed 'rejected_')."""
+        out = dict(self.stats)
+        out.update({f"accepted_{k}": v for k, v in self.codec.accepted.items()})
+        out.update({f"rejected_{k}": v for k, v in self.codec.rejected.items()})
+        out["rejected"] = sum(self.codec.rejected.values())
+        return out
