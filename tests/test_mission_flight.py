@@ -1,0 +1,110 @@
+"""Full missions over loopback UDP: mock ArduCopters carrying hidden targets, the real controller."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import Counter
+
+import numpy as np
+import pytest
+from pymavlink import mavutil
+
+from swarmctl.mission.sim import SimSwarm
+from tests.mission_support import fly, our_threads, small_grid, wait_for
+
+
+def read_tlog(path) -> Counter:
+    log = mavutil.mavlink_connection(str(path))
+    counts: Counter = Counter()
+    while (m := log.recv_match()) is not None:
+        counts[m.get_type()] += 1
+    return counts
+
+
+def events(folder) -> list[dict]:
+    return [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.slow
+def test_three_ardupilot_vehicles_find_and_hover_on_distinct_targets(tmp_path):
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=1, speedup=30.0) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
+        started = time.monotonic()
+        controller, outcome = fly(plan, tmp_path)
+        took = time.monotonic() - started
+        hidden = {tuple(t) for t in swarm.targets.tolist()}
+        mock_cells = [grid.latlon_to_cell(m.lat, m.lon) for m in swarm.mocks]
+        armed = [m.armed for m in swarm.mocks]
+    assert outcome == "complete", (outcome, took)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    ends = {v["name"]: v for v in summary["vehicles"]}
+    assert all(v["end_state"] == "hovering on target" for v in ends.values()), ends
+    cells = [tuple(v["cell"]) for v in ends.values()]
+    assert len(set(cells)) == 3 and set(cells) <= hidden  # distinct targets, the hidden ones
+    assert set(mock_cells) == set(cells) and all(armed)  # the vehicles really are there, in the air
+    assert {tuple(t["cell"]) for t in summary["targets_found"]} == hidden
+    assert summary["steps"] > 0 and all(v["steps"] > 0 and v["distance_m"] > 0 for v in ends.values())
+    assert summary["messages"]["knowledge_sent"] > 0 and summary["messages"]["mavlink_received"] > 0
+    for key in ("time_s", "search_time_s", "messages", "overhead_ms", "policy", "outcome"):
+        assert key in summary
+    # the recording: every step, every packet
+    ev = events(tmp_path)
+    steps = [e for e in ev if e["event"] == "step"]
+    assert [e["step"] for e in steps] == list(range(1, summary["steps"] + 1))
+    for e in steps:
+        for v in e["vehicles"]:
+            assert {"cell", "obs", "q", "move", "guarded", "refused", "received"} <= set(v)
+    assert sum(1 for e in ev if e["event"] == "end_action") == 3
+    counts = read_tlog(tmp_path / "mission.tlog")
+    assert counts["HEARTBEAT"] > 0 and counts["SET_POSITION_TARGET_GLOBAL_INT"] > 0 and counts["TUNNEL"] > 0
+    assert counts["COMMAND_ACK"] > 0 and counts["GLOBAL_POSITION_INT"] > 0
+    assert not our_threads()
+
+
+@pytest.mark.slow
+def test_a_vehicle_losing_its_link_is_left_alone_and_the_others_finish(tmp_path):
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=2, speedup=30.0, gcs_failsafe=None) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
+        victim = swarm.mocks[1]
+
+        async def cut_link(controller):
+            await wait_for(lambda: controller.step >= 2, 60, "the search to start")
+            victim.blackout(600.0)  # silent for the rest of the test
+
+        controller, outcome = fly(plan, tmp_path, during=cut_link)
+    assert outcome == "complete"
+    states = {a.name: (a.state, a.end_state) for a in controller.agents}
+    assert states["uav2"] == ("lost", "lost (left to its failsafe)")
+    others = [a for a in controller.agents if a.name != "uav2"]
+    assert all(a.end_state == "hovering on target" for a in others)
+    assert len({a.cell for a in others}) == 2
+    ev = events(tmp_path)
+    assert any(e["event"] == "state" and e["vehicle"] == "uav2" and e["state"] == "lost" for e in ev)
+    assert not any(e["event"] == "end_action" and e["vehicle"] == "uav2" and e["action"] != "none: link lost"
+                   for e in ev)
+    assert not our_threads()
+
+
+@pytest.mark.slow
+def test_stopping_mid_mission_gives_every_vehicle_its_end_action(tmp_path):
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=3, speedup=30.0) as swarm:
+        plan = swarm.plan("random", end_action="rtl", time_limit=120.0)
+
+        async def interrupt(controller):
+            await wait_for(lambda: controller.step >= 3, 60, "a few steps")
+            controller.stop()  # what SIGINT / SIGTERM do
+
+        controller, outcome = fly(plan, tmp_path, during=interrupt)
+        landed_home = [(not m.armed, m.rel_alt, grid.latlon_to_cell(m.lat, m.lon)) for m in swarm.mocks]
+    assert outcome == "interrupted"
+    assert [a.end_action for a in controller.agents] == ["rtl"] * 3
+    assert [a.end_state for a in controller.agents] == ["landed at home"] * 3
+    for (disarmed, alt, cell), start in zip(landed_home, swarm.starts):
+        assert disarmed and alt == 0.0 and cell == start
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["outcome"] == "interrupted"
+    assert not our_threads()
