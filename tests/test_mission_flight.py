@@ -75,7 +75,7 @@ def test_a_vehicle_losing_its_link_is_left_alone_and_the_others_finish(tmp_path)
             victim.blackout(600.0)  # silent for the rest of the test
 
         controller, outcome = fly(plan, tmp_path, during=cut_link)
-    assert outcome == "complete"
+    assert outcome == "partial"  # the live vehicles hover on distinct targets; one vehicle dropped out
     states = {a.name: (a.state, a.end_state) for a in controller.agents}
     assert states["uav2"] == ("lost", "lost (left to its failsafe)")
     others = [a for a in controller.agents if a.name != "uav2"]

@@ -13,7 +13,8 @@ Each round, for the agents of this process that are searching:
 6. each vehicle that arrived somewhere new senses (its detector's report for that cell) and every
    live agent shares (a delta of new cells and its position; digests and repairs per issue 6).
 
-The mission ends when every live vehicle hovers on a distinct target ("complete"), when the time
+The mission ends when every live vehicle hovers on a distinct target ("complete", or "partial" when
+some vehicles dropped out: lost, sent home on low battery, taken over by the pilot), when the time
 limit passes ("time limit"), when no vehicle is left ("failed") or when stop() is called (signals:
 "interrupted"). Then every vehicle that is still in contact gets the end action: land, rtl, or
 hover (vehicles hovering on a target hold there, the others return home).
@@ -79,12 +80,14 @@ class MissionPlan:
     min_battery: int = 30  # % needed at preflight
     low_battery: int = 15  # % during the search: the vehicle is sent home
     reach_tolerance: float = 0.5  # metres
+    telemetry_hz: float = 5.0  # GLOBAL_POSITION_INT rate asked of ArduPilot vehicles
     sense_timeout: float = 5.0  # seconds to wait for the detector after arriving
     connect_timeout: float = 20.0
     ready_timeout: float = 60.0
     takeoff_timeout: float = 120.0
     end_timeout: float = 180.0  # seconds to wait for landing after the end action
     detectors: dict[int, tuple[str, int]] = field(default_factory=dict)  # vehicle index -> local UDP socket
+    only: list[int] | None = None  # onboard mode: the indices of the vehicles this process flies
 
 
 class Agent:
@@ -226,6 +229,8 @@ class Controller:
 
         plan, w, h = self.plan, self.grid.width, self.grid.height
         for i, spec in enumerate(plan.vehicles):
+            if plan.only is not None and i not in plan.only:
+                continue
             feed = SensorFeed(i, plan.mission_id, w, h)
             if spec.autopilot == "px4":
                 vehicle = PX4Vehicle(spec.connection, sysid=spec.sysid, name=spec.name)
@@ -238,7 +243,7 @@ class Controller:
                     link.on_link_change(self._link_change)
                     self.links[spec.connection] = link
                 link.add_listener(feed.listener(spec.sysid))
-                vehicle = ArduPilotVehicle(link, spec.sysid, name=spec.name)
+                vehicle = ArduPilotVehicle(link, spec.sysid, name=spec.name, telemetry_rate_hz=plan.telemetry_hz)
             if i in plan.detectors:
                 host, port = plan.detectors[i]
                 self.sources.append(UdpSensorSource(feed, host, port).start())
@@ -325,8 +330,6 @@ class Controller:
         held = {a.cell for a in self.agents if a is not exclude and a.cell is not None and a.state != FAILED}
         for a in self.agents:  # vehicles of other processes, known through the knowledge channel
             for v, p in a.knowledge.peers.items():
-                if v >= len(self.agents) or self.agents[v].state == FAILED:
-                    continue
                 if not self._ours(v) and p.cell is not None:
                     held.add(p.cell)
         return held
@@ -402,16 +405,18 @@ class Controller:
             if live and all(a.state == HOVER for a in live):
                 cells = [a.cell for a in live]
                 if len(set(cells)) == len(cells):
-                    self.outcome = "complete"
+                    # complete when every vehicle is hovering on a target; partial when some dropped out
+                    self.outcome = "complete" if len(live) == len(self.agents) else "partial"
                     return
             if time.monotonic() - self.search_started > plan.time_limit:
                 self.outcome = "time limit"
                 return
-            await self._round()
+            moved = await self._round()
             self.round_times.append(time.monotonic() - t0)
             if self.view is not None:
                 self.view(self)
-            wait = plan.step_period - (time.monotonic() - t0)
+            # nobody moved (all staying or waiting): do not spin faster than 10 rounds a second
+            wait = max(plan.step_period, 0.0 if moved else 0.1) - (time.monotonic() - t0)
             if wait > 0:
                 try:
                     await asyncio.wait_for(self._stop.wait(), wait)
@@ -485,7 +490,8 @@ class Controller:
         finally:
             a.rejoin_task = None
 
-    async def _round(self) -> None:
+    async def _round(self) -> bool:
+        """One decision round; True when some vehicle moved."""
         plan = self.plan
         searching = [a for a in self.agents if a.state == SEARCH]
         t = time.monotonic()
@@ -530,6 +536,7 @@ class Controller:
                        received=a.received_since()) for a in self.agents if a not in searching]
         self.rec.event("step", step=self.step, vehicles=records, others=others,
                        decide_ms=round(self.decide_times[-1] * 1000, 3))
+        return bool(moves)
 
     # --- the end ---------------------------------------------------------------------------------------
     async def _finish_safely(self) -> None:

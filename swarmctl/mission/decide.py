@@ -45,7 +45,8 @@ class _FieldView:
 
     def __init__(self, kn: Knowledge, targets: np.ndarray, window: int, fov: float):
         own = kn.own_position
-        others = [p.cell for v, p in sorted(kn.peers.items()) if p.cell is not None]
+        # vehicles hovering on a target are done: they take no part in the assignment or the claims
+        others = [p.cell for v, p in sorted(kn.peers.items()) if p.cell is not None and not p.on_target]
         cells = np.array([own.cell, *others], dtype=np.int64)
         self.batch, self.uavs = 1, len(cells)
         self.width, self.height = kn.width, kn.height

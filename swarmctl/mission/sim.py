@@ -84,7 +84,7 @@ class SimSwarm:
     autopilots: list[str] | None = None
     channel: Channel | None = None
     gcs_failsafe: float | None = 5.0
-    speed: float = 5.0
+    speed: float = 10.0  # m/s, a usual cruise speed for search quadcopters
     mocks: list[MockAutopilot] = field(default_factory=list)
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
@@ -134,6 +134,7 @@ class SimSwarm:
         kw.setdefault("step_period", 0.0)
         kw.setdefault("step_timeout", 10.0)
         kw.setdefault("end_timeout", 60.0)
+        kw.setdefault("telemetry_hz", 20.0)
         return MissionPlan(name="demo", mission_id=self.mission_id, grid=self.grid, vehicles=list(self.specs),
                            policy=policy, altitude=self.altitude, knowledge_peer=self.radio.address,
                            seed=self.seed, detectors=dict(self.detector_ports), **kw)
