@@ -27,9 +27,9 @@ def events(folder) -> list[dict]:
 
 
 @pytest.mark.slow
-def test_three_ardupilot_vehicles_find_and_hover_on_distinct_targets(tmp_path):
+def test_three_ardupilot_and_one_px4_find_and_hover_on_distinct_targets(tmp_path):
     grid = small_grid()
-    with SimSwarm(grid, uavs=3, seed=1, speedup=30.0) as swarm:
+    with SimSwarm(grid, uavs=4, seed=1, speedup=30.0, autopilots=["ardupilot"] * 3 + ["px4"]) as swarm:
         plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
         started = time.monotonic()
         controller, outcome = fly(plan, tmp_path)
@@ -42,7 +42,7 @@ def test_three_ardupilot_vehicles_find_and_hover_on_distinct_targets(tmp_path):
     ends = {v["name"]: v for v in summary["vehicles"]}
     assert all(v["end_state"] == "hovering on target" for v in ends.values()), ends
     cells = [tuple(v["cell"]) for v in ends.values()]
-    assert len(set(cells)) == 3 and set(cells) <= hidden  # distinct targets, the hidden ones
+    assert len(set(cells)) == 4 and set(cells) <= hidden  # distinct targets, the hidden ones
     assert set(mock_cells) == set(cells) and all(armed)  # the vehicles really are there, in the air
     assert {tuple(t["cell"]) for t in summary["targets_found"]} == hidden
     assert summary["steps"] > 0 and all(v["steps"] > 0 and v["distance_m"] > 0 for v in ends.values())
@@ -56,7 +56,8 @@ def test_three_ardupilot_vehicles_find_and_hover_on_distinct_targets(tmp_path):
     for e in steps:
         for v in e["vehicles"]:
             assert {"cell", "obs", "q", "move", "guarded", "refused", "received"} <= set(v)
-    assert sum(1 for e in ev if e["event"] == "end_action") == 3
+    assert sum(1 for e in ev if e["event"] == "end_action") == 4
+    assert ends["uav4"]["autopilot"] == "px4" and ends["uav4"]["sensor_reports"] > 0  # via the detector socket
     counts = read_tlog(tmp_path / "mission.tlog")
     assert counts["HEARTBEAT"] > 0 and counts["SET_POSITION_TARGET_GLOBAL_INT"] > 0 and counts["TUNNEL"] > 0
     assert counts["COMMAND_ACK"] > 0 and counts["GLOBAL_POSITION_INT"] > 0
@@ -107,4 +108,56 @@ def test_stopping_mid_mission_gives_every_vehicle_its_end_action(tmp_path):
         assert disarmed and alt == 0.0 and cell == start
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["outcome"] == "interrupted"
+    assert not our_threads()
+
+
+@pytest.mark.slow
+def test_a_vehicle_that_comes_back_rejoins_the_search(tmp_path):
+    grid = small_grid(16, 16)  # large enough that the others are still searching when it comes back
+    # its own failsafe (1.5 s without the controller's heartbeat) sends it home; then it comes back
+    with SimSwarm(grid, uavs=3, seed=6, speedup=30.0, gcs_failsafe=1.5) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
+        victim = swarm.mocks[2]
+
+        async def outage(controller):
+            await wait_for(lambda: controller.step >= 1, 60, "the search to start")
+            victim.blackout(4.5)
+
+        controller, outcome = fly(plan, tmp_path, during=outage)
+    assert outcome == "complete"
+    assert all(a.end_state == "hovering on target" for a in controller.agents)
+    ev = [e for e in events(tmp_path) if e["event"] == "state" and e["vehicle"] == "uav3"]
+    assert [e["state"] for e in ev][-5:] == ["lost", "rejoin", "search", "hover", "ended"]
+    assert any(e.get("rejoined") for e in ev)
+
+
+@pytest.mark.slow
+def test_onboard_mode_two_processes_share_only_through_the_knowledge_channel(tmp_path):
+    """Two controllers (as two `swarmctl agent` processes would be), one with two vehicles, one with one."""
+    import asyncio
+
+    from swarmctl.mission.controller import Controller
+    from swarmctl.mission.recorder import Recorder
+
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=7, speedup=30.0) as swarm:
+        plans = [swarm.plan("frontier", end_action="hover", time_limit=120.0) for _ in range(2)]
+        plans[0].only, plans[1].only = [0, 1], [2]
+        recs = [Recorder(tmp_path / f"p{i}") for i in range(2)]
+        controllers = [Controller(p, r) for p, r in zip(plans, recs)]
+
+        async def both():
+            return await asyncio.wait_for(asyncio.gather(*(c.run() for c in controllers)), 150)
+
+        try:
+            outcomes = asyncio.run(both())
+        finally:
+            for r in recs:
+                r.close()
+        hidden = {tuple(t) for t in swarm.targets.tolist()}
+    assert outcomes == ["complete", "complete"]
+    cells = [a.cell for c in controllers for a in c.agents]
+    assert len(set(cells)) == 3 and set(cells) <= hidden
+    # each process knows the other's vehicle only from the knowledge channel
+    assert 2 in controllers[0].agents[0].knowledge.positions and 0 in controllers[1].agents[0].knowledge.positions
     assert not our_threads()

@@ -107,6 +107,7 @@ class Agent:
         self.end_state: str | None = None
         self.error: str | None = None
         self._last_fix: tuple[float, float] | None = None
+        self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
 
@@ -266,6 +267,10 @@ class Controller:
 
     def _link_change(self, sysid: int, event: str) -> None:
         self.rec.event("link", sysid=sysid, change=event)
+        if event == "lost":
+            for a in self.agents:
+                if a.spec.sysid == sysid:
+                    a.saw_loss = True
 
     async def _start_all(self) -> None:
         await asyncio.gather(*(self._start(a) for a in self.agents))
@@ -357,11 +362,23 @@ class Controller:
             raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
         lat, lon = self.grid.cell_to_latlon(*cell)
         await a.vehicle.goto(lat, lon, self.guard.setpoint_altitude())
+        # wait until reached, but give up at once when the link is lost or the mission is stopped
+        task = asyncio.ensure_future(a.vehicle.wait_reached(self.plan.reach_tolerance, timeout))
         try:
-            await a.vehicle.wait_reached(self.plan.reach_tolerance, timeout)
-            return True
-        except MavlinkError:
-            return False
+            while not task.done():
+                if a.vehicle.lost or self.stopping:
+                    return False
+                await asyncio.wait({task}, timeout=0.1)
+            return task.exception() is None
+        finally:
+            if not task.done():
+                task.cancel()
+                try:
+                    await task
+                except (asyncio.CancelledError, MavlinkError):
+                    pass
+            elif not task.cancelled() and task.exception() is not None and not isinstance(task.exception(), MavlinkError):
+                raise task.exception()
 
     async def _sense_and_share(self, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
         """Sense (when the vehicle reached a new cell) and publish; returns the targets it saw."""
@@ -369,7 +386,8 @@ class Controller:
         on_target = a.state == HOVER
         found: list[tuple[int, int]] = []
         if moved and a.cell is not None:
-            report = await a.feed.wait_report(a.cell, since, self.plan.sense_timeout)
+            report = await a.feed.wait_report(a.cell, since, self.plan.sense_timeout,
+                                              abort=lambda: a.vehicle.lost or self.stopping)
             if report is None:
                 self.rec.event("no_report", vehicle=a.name, cell=a.cell, step=self.step)
                 ex.step(self.step, a.cell, on_target)
@@ -402,7 +420,7 @@ class Controller:
             if not live and not any(a.state in (LOST,) for a in self.agents):
                 self.outcome = "failed"
                 return
-            if live and all(a.state == HOVER for a in live):
+            if live and all(a.state == HOVER for a in live) and self._others_hovering():
                 cells = [a.cell for a in live]
                 if len(set(cells)) == len(cells):
                     # complete when every vehicle is hovering on a target; partial when some dropped out
@@ -425,10 +443,27 @@ class Controller:
             elif not live:
                 await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
 
+    def _others_hovering(self) -> bool:
+        """Onboard mode: every vehicle of the mission flown by another process is known (through the
+        knowledge channel) to hover on a target of its own. Always true in ground mode."""
+        mine = {a.cell for a in self.agents if a.state == HOVER}
+        for v in range(len(self.plan.vehicles)):
+            if self._ours(v):
+                continue
+            known = [a.knowledge.positions.get(v) for a in self.agents]
+            known = [p for p in known if p is not None]
+            if not known:
+                return False
+            newest = max(known, key=lambda p: p.order())
+            if not newest.on_target or newest.cell in mine:
+                return False
+        return True
+
     def _update_states(self) -> None:
         for a in self.agents:
             lost = a.vehicle.lost
-            if a.state in (SEARCH, HOVER, REJOIN) and lost:
+            if a.state in (SEARCH, HOVER, REJOIN) and (lost or a.saw_loss):
+                a.saw_loss = False
                 if a.rejoin_task is not None:
                     a.rejoin_task.cancel()
                     a.rejoin_task = None

@@ -53,7 +53,12 @@ class _FieldView:
         self.cfg = SimpleNamespace(window=window, fov=fov)
         self.pos = cells[None]
         self.explored = np.broadcast_to(kn.explored, (1, self.uavs, kn.width, kn.height))
-        self._obstacles = np.broadcast_to(kn.obstacle, (1, self.uavs, kn.width, kn.height))
+        # a vehicle hovering on a target stays there: to the others its cell is an obstacle to go round
+        blocked = kn.obstacle.copy()
+        for p in kn.peers.values():
+            if p.on_target and p.cell is not None:
+                blocked[p.cell] = True
+        self._obstacles = np.broadcast_to(blocked, (1, self.uavs, kn.width, kn.height))
         self.targets = np.asarray(targets, dtype=np.int64).reshape(1, -1, 2)
 
     def known_obstacles(self) -> np.ndarray:

@@ -108,8 +108,10 @@ class SensorFeed:
         return on_message
 
     # --- waiting ---------------------------------------------------------------------------------------
-    async def wait_report(self, cell: tuple[int, int], since: float, timeout: float) -> SensorReport | None:
-        """The report for `cell` received after `since` (monotonic), or None after `timeout` s."""
+    async def wait_report(self, cell: tuple[int, int], since: float, timeout: float,
+                          abort: Any = None) -> SensorReport | None:
+        """The report for `cell` received after `since` (monotonic), or None after `timeout` s (or as
+        soon as `abort()` is true)."""
         if self._changed is None:
             self._changed = asyncio.Event()
         deadline = time.monotonic() + timeout
@@ -118,7 +120,7 @@ class SensorFeed:
             if r is not None and r.received >= since:
                 return r
             left = deadline - time.monotonic()
-            if left <= 0:
+            if left <= 0 or (abort is not None and abort()):
                 return None
             self._changed.clear()
             try:
