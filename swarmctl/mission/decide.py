@@ -41,17 +41,13 @@ class Choice:
 
 
 class _FieldView:
-    """The attributes the frontier planner reads, for one agent (batch 1, itself first)."""
+    """The attributes the frontier planner reads: batch 1, the given vehicles' cells in that order."""
 
-    def __init__(self, kn: Knowledge, targets: np.ndarray, window: int, fov: float):
-        own = kn.own_position
-        # vehicles hovering on a target are done: they take no part in the assignment or the claims
-        others = [p.cell for v, p in sorted(kn.peers.items()) if p.cell is not None and not p.on_target]
-        cells = np.array([own.cell, *others], dtype=np.int64)
+    def __init__(self, kn: Knowledge, cells: list, targets: np.ndarray, window: int, fov: float):
         self.batch, self.uavs = 1, len(cells)
         self.width, self.height = kn.width, kn.height
         self.cfg = SimpleNamespace(window=window, fov=fov)
-        self.pos = cells[None]
+        self.pos = np.array(cells, dtype=np.int64).reshape(1, -1, 2)
         self.explored = np.broadcast_to(kn.explored, (1, self.uavs, kn.width, kn.height))
         # a vehicle hovering on a target stays there: to the others its cell is an obstacle to go round
         blocked = kn.obstacle.copy()
@@ -66,17 +62,36 @@ class _FieldView:
 
 
 def _frontier_move(kn: Knowledge, rng: np.random.Generator, window: int, fov: float) -> int:
-    held = {p.cell for v, p in kn.peers.items() if p.on_target and p.cell is not None}
+    """The frontier planner's move for this agent, from its own knowledge.
+
+    The vehicles it knows of (itself included; those hovering on a target are done and left out) are
+    taken in mission order, as the centralised planner would: known targets go nearest pair first,
+    and the exploration claims of the vehicles before this one are respected. Only the distance maps
+    the decision needs are computed."""
+    own = kn.own_position
+    me_id = kn.vehicle_id
+    peers = {v: p.cell for v, p in kn.peers.items() if p.cell is not None and not p.on_target}
+    order = sorted([me_id, *peers])
+    cells = [own.cell if v == me_id else peers[v] for v in order]
+    me = order.index(me_id)
+    held = {p.cell for p in kn.peers.values() if p.on_target and p.cell is not None}
     targets = np.array([c for c in sorted(kn.targets) if c not in held], dtype=np.int64).reshape(-1, 2)
-    view = _FieldView(kn, targets, window, fov)
-    dist = planners._distances_from_vehicles(view)
+    has_target = np.zeros((1, len(cells)), dtype=bool)
+    goal = None
+    dist = None
     if len(targets):
+        view = _FieldView(kn, cells, targets, window, fov)
+        dist = planners._distances_from_vehicles(view)
         goals, has_target = planners._target_goals(view, dist)
-    else:
-        goals, has_target = view.pos.copy(), np.zeros((1, view.uavs), dtype=bool)
-    explore, _ = planners._nearest_unexplored(view, dist, ~has_target, rng, spread=2 * fov)
-    goals = np.where(has_target[..., None], goals, explore)
-    return int(planners._navigate(view, goals, rng)[0, 0])
+        if has_target[0, me]:
+            goal = goals[0, me]
+    if goal is None:
+        first = _FieldView(kn, cells[: me + 1], targets, window, fov)
+        d = dist[:, : me + 1] if dist is not None else planners._distances_from_vehicles(first)
+        explore, _ = planners._nearest_unexplored(first, d, ~has_target[:, : me + 1], rng, spread=2 * fov)
+        goal = explore[0, me]
+    alone = _FieldView(kn, [own.cell], targets, window, fov)
+    return int(planners._navigate(alone, np.asarray(goal, dtype=np.int64).reshape(1, 1, 2), rng)[0, 0])
 
 
 class FieldPolicy:
