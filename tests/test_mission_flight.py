@@ -161,3 +161,29 @@ def test_onboard_mode_two_processes_share_only_through_the_knowledge_channel(tmp
     # each process knows the other's vehicle only from the knowledge channel
     assert 2 in controllers[0].agents[0].knowledge.positions and 0 in controllers[1].agents[0].knowledge.positions
     assert not our_threads()
+
+
+@pytest.mark.slow
+def test_a_ddql_policy_flies_and_every_step_records_its_q_values(tmp_path):
+    """The learned path: observations from each agent's knowledge, one batched forward pass per round
+    (an untrained network: the test is about the plumbing, not the search)."""
+    import torch
+
+    from swarmctl.policy.checkpoint import save_checkpoint
+    from swarmctl.policy.qnet import QNetwork
+
+    torch.manual_seed(0)
+    model = tmp_path / "model.pt"
+    save_checkpoint(model, QNetwork(window=20), {"window": 20}, {}, {"note": "untrained, for tests"})
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=8, speedup=30.0) as swarm:
+        plan = swarm.plan(f"ddql:{model}:tau=1.0", end_action="land", time_limit=6.0)
+        controller, outcome = fly(plan, tmp_path / "rec")
+        landed = [not m.armed and m.rel_alt == 0.0 for m in swarm.mocks]
+    assert outcome in ("time limit", "complete")
+    assert all(landed) and [a.end_state for a in controller.agents] == ["landed"] * 3
+    steps = [e for e in events(tmp_path / "rec") if e["event"] == "step"]
+    assert steps
+    for e in steps:
+        for v in e["vehicles"]:
+            assert len(v["q"]) == 5 and len(v["obs"]) == 16

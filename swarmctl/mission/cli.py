@@ -28,10 +28,19 @@ def _find(relative: Path) -> Path | None:
     return None
 
 
-def default_policy() -> str:
-    """The shipped model when it is there, else the frontier planner."""
+def default_policy() -> tuple[str, str | None]:
+    """The shipped model when it is there and fits the controller, else the frontier planner
+    (with the reason, to tell the user)."""
     model = _find(DEMO_MODEL)
-    return f"ddql:{model}" if model is not None else "frontier"
+    if model is None:
+        return "frontier", f"{DEMO_MODEL} is not there"
+    from swarmctl.mission.decide import FieldPolicy
+
+    try:
+        FieldPolicy(f"ddql:{model}")
+    except InputError as exc:
+        return "frontier", f"{DEMO_MODEL} cannot be used ({exc})"
+    return f"ddql:{model}", None
 
 
 def _out_folder(out: Path | None, name: str) -> Path:
@@ -61,7 +70,7 @@ def view_options(func):
               help="Recording folder (default runs/demo-YYYYmmdd-HHMMSS).")
 @click.option("--policy", default=None,
               help=f"ddql:PATH[:tau=T], ddql-greedy:PATH, frontier or random. Default: ddql:{DEMO_MODEL} "
-                   "if that file exists, else frontier.")
+                   "if that file exists and takes 20 x 20 observations, else frontier.")
 @click.option("--mission", "mission_file", type=click.Path(path_type=Path), default=None,
               help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].")
 @click.option("--speedup", type=float, default=20.0, show_default=True,
@@ -92,8 +101,12 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
         raise InputError(f"--time-limit {time_limit}: must be a number of seconds > 0")
     if targets is not None and targets < 1:
         raise InputError(f"--targets {targets}: hide at least one target")
-    policy = policy or default_policy()
+    note = None
+    if policy is None:
+        policy, note = default_policy()
     FieldPolicy(policy)  # bad policies fail here, before anything starts
+    if note and not quiet:
+        click.echo(f"demo: {note}; flying with the frontier planner", err=True)
     settings: dict = {}
     if mission_file is not None:
         from swarmctl.mission.config import load_mission
