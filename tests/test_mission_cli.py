@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from swarmctl.cli import main
+from swarmctl.errors import InputError
 from tests.mission_support import small_grid
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -110,3 +111,16 @@ def test_fly_prints_the_plan_and_does_not_fly_without_confirmation(tmp_path, mon
     out = capsys.readouterr()
     assert "grid 10 x 10 cells of 10 m" in out.out and "vehicle a: sysid 1" in out.out
     assert "not flown" in out.err
+
+
+def test_a_vehicle_may_name_its_detector_socket(tmp_path):
+    from swarmctl.mission.config import load_mission
+    from swarmctl.mission.service import plan_from_config
+
+    path = small_mission(tmp_path)
+    path.write_text(path.read_text() + 'detector = "udp:127.0.0.1:14650"\n')
+    plan = plan_from_config(load_mission(path))
+    assert plan.detectors == {0: ("127.0.0.1", 14650)}
+    path.write_text(path.read_text().replace("udp:127.0.0.1:14650", "tcp:x"))
+    with pytest.raises(InputError, match=r"vehicles\[0\]\.detector"):
+        load_mission(path)

@@ -63,9 +63,9 @@ def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector
             if n not in names:
                 raise InputError(f"--vehicle {n!r} is not in {cfg.path}; use one of {', '.join(names)}")
         keep = [names.index(n) for n in only]
-    detectors = {}
+    detectors = {i: parse_detector(cfg.vehicles[i].detector) for i in keep if cfg.vehicles[i].detector}
     if detector:
-        detectors = {i: parse_detector(detector) for i in keep}
+        detectors.update({i: parse_detector(detector) for i in keep})
     plan = MissionPlan(name=cfg.name, mission_id=cfg.mission_id, grid=grid, vehicles=list(cfg.vehicles),
                        policy=cfg.policy, altitude=float(cfg.altitude), step_period=float(cfg.step_period),
                        step_timeout=float(cfg.step_timeout), time_limit=float(cfg.time_limit),
