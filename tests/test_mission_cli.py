@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from swarmctl.cli import main
@@ -40,8 +41,13 @@ def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, 
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "complete" and len(summary["targets_found"]) == 3
     assert sorted(map(tuple, summary["hidden_targets"])) == sorted(tuple(t["cell"]) for t in summary["targets_found"])
-    for name in ("mission.tlog", "events.jsonl", "grid.npz", "mission.png"):
+    for name in ("mission.tlog", "events.jsonl", "grid.npz", "mission.png", "mission.toml"):
         assert (out / name).stat().st_size > 0
+    points = json.loads((out / "targets.geojson").read_text())["features"]
+    got = sorted((p["geometry"]["coordinates"][1], p["geometry"]["coordinates"][0]) for p in points)
+    want = sorted((t["lat"], t["lon"]) for t in summary["targets_found"])
+    assert np.allclose(got, want, atol=1e-6, rtol=0)
+    assert summary["knowledge_radio"]["forwarded"] > 0
     assert "complete: 3 targets found" in capsys.readouterr().out
 
 

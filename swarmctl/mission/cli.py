@@ -132,13 +132,15 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
     with swarm:
         plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file)
         if mission_file is not None:
-            plan.name = cfg.name
+            plan.name, plan.mission_file = cfg.name, cfg.path
         if not quiet:
             click.echo(f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
                        f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x -> {folder}", err=True)
         code, summary = run_controller(
             plan, folder, LiveView(live=not no_live, quiet=quiet),
-            extra_summary=lambda c: {"hidden_targets": swarm.targets.tolist(), "speedup": speedup, "seed": seed})
+            extra_summary=lambda c: {"hidden_targets": swarm.targets.tolist(), "speedup": speedup, "seed": seed,
+                                     "knowledge_radio": {"forwarded": swarm.radio.forwarded,
+                                                         "lost": swarm.radio.dropped}})
     draw_mission(folder, grid, swarm.targets)
     _finish(code, folder, summary, quiet)
 

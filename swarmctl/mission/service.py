@@ -165,9 +165,21 @@ def run_controller(plan: MissionPlan, folder: Path, view: LiveView | None, extra
         outcome = asyncio.run(main())
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
         rec.write_summary(summary)
+        write_targets_geojson(folder / "targets.geojson", summary)
     finally:
         rec.close()
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
+
+
+def write_targets_geojson(path: Path, summary: dict) -> Path:
+    """The targets found as GeoJSON points (lon, lat), with their cell and the step of the first report."""
+    import json
+
+    features = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(t["lon"], 7), round(t["lat"], 7)]},
+                 "properties": {"cell_x": t["cell"][0], "cell_y": t["cell"][1], "first_step": t["step"],
+                                "mission": summary["mission"]}} for t in summary["targets_found"]]
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}, indent=1) + "\n")
+    return path
 
 
 def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out: Path | None = None) -> Path:
