@@ -187,3 +187,24 @@ def test_a_ddql_policy_flies_and_every_step_records_its_q_values(tmp_path):
     for e in steps:
         for v in e["vehicles"]:
             assert len(v["q"]) == 5 and len(v["obs"]) == 16
+
+
+@pytest.mark.slow
+def test_a_pilot_taking_over_is_left_alone(tmp_path):
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=9, speedup=30.0) as swarm:
+        plan = swarm.plan("frontier", end_action="rtl", time_limit=120.0)
+        pilot = swarm.mocks[0]
+
+        async def take_over(controller):
+            await wait_for(lambda: controller.step >= 2, 60, "the search to start")
+            with pilot._lock:
+                pilot._set_mode_name("LOITER")  # as the pilot's mode switch would
+
+        controller, outcome = fly(plan, tmp_path, during=take_over)
+        still_flying = pilot.armed and pilot.mode_name == "LOITER"
+    assert outcome == "partial"
+    a = controller.agents[0]
+    assert a.state == "override" and a.end_state == "pilot (LOITER)" and a.end_action is None
+    assert still_flying  # swarmctl sent it nothing: no end action, no mode change
+    assert [b.end_state for b in controller.agents[1:]] == ["landed at home"] * 2

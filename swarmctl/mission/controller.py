@@ -473,7 +473,7 @@ class Controller:
                 self._state(a, REJOIN)
                 a.rejoin_task = asyncio.ensure_future(self._rejoin(a))
                 continue
-            if a.state in (SEARCH, HOVER) and a.spec.autopilot == "ardupilot" and a.vehicle.mode != "GUIDED":
+            if a.state in (SEARCH, HOVER) and _pilot_has_it(a.spec.autopilot, a.vehicle.mode):
                 self._state(a, OVERRIDE, mode=a.vehicle.mode)  # the pilot took over: stop commanding it
                 a.cell = None
                 continue
@@ -696,6 +696,17 @@ class Controller:
         if extra:
             out.update(extra)
         return out
+
+
+# PX4 modes (as MAVSDK names them) a pilot selects with the sticks; swarmctl flies PX4 in HOLD/TAKEOFF
+_PX4_PILOT_MODES = {"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"}
+
+
+def _pilot_has_it(autopilot: str, mode: str) -> bool:
+    """True when the vehicle is no longer in the mode swarmctl flies it in (the pilot took over)."""
+    if autopilot == "px4":
+        return mode in _PX4_PILOT_MODES
+    return mode not in ("GUIDED", "UNKNOWN")
 
 
 async def _cancel(task: asyncio.Future) -> None:
