@@ -112,6 +112,7 @@ class Agent:
         self.error: str | None = None
         self._last_fix: tuple[float, float] | None = None
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
+        self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
 
@@ -443,6 +444,19 @@ class Controller:
             elif not live:
                 await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
 
+    def _pilot_has_it(self, a: Agent) -> bool:
+        """The pilot took over. PX4's mode reaches us through MAVSDK's subscription, which was seen to
+        report the pre-take-off POSCTL for a moment after the take-off: it must last 1.5 s."""
+        if not _pilot_mode(a.spec.autopilot, a.vehicle.mode):
+            a.pilot_since = None
+            return False
+        if a.spec.autopilot != "px4":
+            return True
+        now = time.monotonic()
+        if a.pilot_since is None:
+            a.pilot_since = now
+        return now - a.pilot_since >= 1.5
+
     def _others_hovering(self) -> bool:
         """Onboard mode: every vehicle of the mission flown by another process is known (through the
         knowledge channel) to hover on a target of its own. Always true in ground mode."""
@@ -473,7 +487,7 @@ class Controller:
                 self._state(a, REJOIN)
                 a.rejoin_task = asyncio.ensure_future(self._rejoin(a))
                 continue
-            if a.state in (SEARCH, HOVER) and _pilot_has_it(a.spec.autopilot, a.vehicle.mode):
+            if a.state in (SEARCH, HOVER) and self._pilot_has_it(a):
                 self._state(a, OVERRIDE, mode=a.vehicle.mode)  # the pilot took over: stop commanding it
                 a.cell = None
                 continue
@@ -702,7 +716,7 @@ class Controller:
 _PX4_PILOT_MODES = {"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"}
 
 
-def _pilot_has_it(autopilot: str, mode: str) -> bool:
+def _pilot_mode(autopilot: str, mode: str) -> bool:
     """True when the vehicle is no longer in the mode swarmctl flies it in (the pilot took over)."""
     if autopilot == "px4":
         return mode in _PX4_PILOT_MODES
