@@ -19,7 +19,8 @@ Every payload starts with the same 17-byte header (little endian):
     10 u16  sequence number (per sender, all kinds, wraps)
     12 u8   chunk index      13 u8  chunk count     (index < count)
     14 u8   sender x         15 u8  sender y        (255, 255: position unknown)
-    16 u8   flags: bit 0 on target, bit 1 repair (answer to a request); other bits 0
+    16 u8   flags: bit 0 on target, bit 1 repair (answer to a request or a push), bit 2 cell list
+            (DIGEST / REQUEST only: the chunk is sent as a list, below); other bits 0
 
 Bodies (byte offsets from 17; TUNNEL.payload_length = header + body exactly; bytes after it are 0):
 
@@ -27,10 +28,13 @@ Bodies (byte offsets from 17; TUNNEL.payload_length = header + body exactly; byt
     DIGEST     bitmap of cells [i * 880, (i + 1) * 880) of the flat index x * H + y, bit k of the
                chunk in byte k // 8 at bit k % 8 (LSB first); padding bits 0; count = ceil(W H / 880)
     REQUEST    u8 target vehicle id, then a bitmap chunk laid out like DIGEST's
+    (cell list) DIGEST and REQUEST chunks with few cells set are sent instead as u8 n, then n x u16
+               offsets within the chunk, strictly increasing (the encoder picks the shorter form)
     DETECTION  u8 n (1..55), then n x { u8 x ; u8 y }
 
-Limits: W, H <= 255 and W * H <= 32768 (15-bit cell index): 181 x 181, 128 x 256, ... 50 x 50 needs
-3 digest chunks. Steps up to 2^32 - 1.
+Limits: W, H <= 255 and W * H <= 32768 (15-bit cell index): 181 x 181, 128 x 255, ... 50 x 50 needs
+3 digest chunks. Steps up to 2^32 - 1, vehicle ids 0..255, mission ids 0..65535. Delta chunks
+stand alone (each is a complete delta); a delta of more than 255 chunks is numbered in groups of 255.
 
 Decoding never raises on bad bytes: a payload that is truncated, oversized, of a foreign
 payload_type, another version, another mission, another grid, with cells outside the grid, bad
@@ -61,7 +65,7 @@ PAYLOAD_SIZE = 128
 HEADER = struct.Struct("<BHBIBBHBBBBB")
 HEADER_SIZE = HEADER.size  # 17
 NO_CELL = 255
-FLAG_ON_TARGET, FLAG_REPAIR = 0x01, 0x02
+FLAG_ON_TARGET, FLAG_REPAIR, FLAG_CELL_LIST = 0x01, 0x02, 0x04
 MAX_DELTA_CELLS = (PAYLOAD_SIZE - HEADER_SIZE - 1) // 3  # 36
 MAX_DETECTIONS = (PAYLOAD_SIZE - HEADER_SIZE - 1) // 2  # 55
 BITMAP_BYTES = PAYLOAD_SIZE - HEADER_SIZE - 1  # 110 (REQUEST needs one byte for its target)
@@ -69,6 +73,7 @@ CELLS_PER_CHUNK = BITMAP_BYTES * 8  # 880
 MAX_SIDE = 255
 MAX_CELLS = 1 << 15
 MAX_VEHICLE_ID = 255
+MAX_CHUNKS = 255  # u8 chunk count
 COMPONENT_ID = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 _CELL_DTYPE = np.dtype([("cell", "<u2"), ("phi", "u1")])
 
@@ -137,7 +142,7 @@ class KnowledgeCodec:
                              f"sides <= {MAX_SIDE} and at most {MAX_CELLS} cells")
         self.mission_id, self.width, self.height = int(mission_id), int(width), int(height)
         self.chunks = digest_chunk_count(self.width, self.height)
-        self.max_delta_chunks = -(-self.width * self.height // MAX_DELTA_CELLS)
+        self.max_delta_chunks = min(MAX_CHUNKS, -(-self.width * self.height // MAX_DELTA_CELLS))
         self.rejected: Counter[str] = Counter()
         self.accepted: Counter[str] = Counter()
         self.ignored: Counter[str] = Counter()
@@ -148,7 +153,8 @@ class KnowledgeCodec:
         self.last_repair = False  # the repair flag of the last accepted payload
 
     # ----- encoding ---------------------------------------------------------------------------------
-    def _header(self, sender: int, step: int, chunk: int, chunks: int, cell, on_target: bool, repair: bool) -> bytes:
+    def _header(self, sender: int, step: int, chunk: int, chunks: int, cell, on_target: bool, repair: bool,
+                cell_list: bool = False) -> bytes:
         if not 0 <= sender <= MAX_VEHICLE_ID:
             raise ValueError(f"vehicle id {sender} must be 0..{MAX_VEHICLE_ID}")
         if not 0 <= step <= 0xFFFFFFFF:
@@ -156,7 +162,7 @@ class KnowledgeCodec:
         x, y = (NO_CELL, NO_CELL) if cell is None else cell
         if cell is not None and not (0 <= x < self.width and 0 <= y < self.height):
             raise ValueError(f"position {cell} is outside the {self.width} x {self.height} grid")
-        flags = (FLAG_ON_TARGET if on_target else 0) | (FLAG_REPAIR if repair else 0)
+        flags = (FLAG_ON_TARGET if on_target else 0) | (FLAG_REPAIR if repair else 0) | (FLAG_CELL_LIST if cell_list else 0)
         seq, self._seq = self._seq, (self._seq + 1) & 0xFFFF
         return HEADER.pack(FORMAT_VERSION, self.mission_id, sender, step, self.width, self.height, seq,
                            chunk, chunks, x, y, flags)
@@ -183,7 +189,10 @@ class KnowledgeCodec:
             body = np.empty(len(part), dtype=_CELL_DTYPE)
             body["cell"] = (part.cells[:, 0] * self.height + part.cells[:, 1]) | (part.obstacle.astype(np.int64) << 15)
             body["phi"] = part.phi
-            head = self._header(delta.sender, delta.step, i, len(parts), delta.cell, delta.on_target, repair)
+            # chunks stand alone; past 255 of them the numbering starts a new group of up to 255
+            group = i // MAX_CHUNKS * MAX_CHUNKS
+            count = min(MAX_CHUNKS, len(parts) - group)
+            head = self._header(delta.sender, delta.step, i - group, count, delta.cell, delta.on_target, repair)
             out.append((PT_DELTA, head + bytes([len(part)]) + body.tobytes()))
         return out
 
@@ -202,8 +211,13 @@ class KnowledgeCodec:
         if chunk.count != self.chunks or not 0 <= chunk.index < chunk.count or chunk.bits.size != expected:
             raise ValueError(f"bitmap chunk {chunk.index}/{chunk.count} of {chunk.bits.size} bits does not fit "
                              f"a {self.width} x {self.height} grid ({self.chunks} chunks)")
-        head = self._header(chunk.sender, chunk.step, chunk.index, chunk.count, chunk.cell, chunk.on_target, False)
         bits = np.packbits(chunk.bits, bitorder="little").tobytes()
+        offsets = np.flatnonzero(chunk.bits)
+        cell_list = 1 + 2 * offsets.size < len(bits)
+        if cell_list:
+            bits = bytes([offsets.size]) + offsets.astype("<u2").tobytes()
+        head = self._header(chunk.sender, chunk.step, chunk.index, chunk.count, chunk.cell, chunk.on_target, False,
+                            cell_list)
         if chunk.target is None:
             return PT_DIGEST, head + bits
         return PT_REQUEST, head + bytes([chunk.target]) + bits
@@ -247,7 +261,8 @@ class KnowledgeCodec:
             return self._reject("mission", str(mission))
         if (w, h) != (self.width, self.height):
             return self._reject("grid", f"{w} x {h}")
-        if flags & ~(FLAG_ON_TARGET | FLAG_REPAIR):
+        if flags & ~(FLAG_ON_TARGET | FLAG_REPAIR | FLAG_CELL_LIST) or (
+                flags & FLAG_CELL_LIST and payload_type not in (PT_DIGEST, PT_REQUEST)):
             return self._reject("flags", hex(flags))
         if (x, y) == (NO_CELL, NO_CELL):
             cell = None
@@ -264,7 +279,8 @@ class KnowledgeCodec:
         elif payload_type == PT_DETECTION:
             msg = self._decode_detection(body, sender, step, cell, on_target)
         else:
-            msg = self._decode_bitmap(payload_type, body, sender, step, cell, on_target, chunk, chunks)
+            msg = self._decode_bitmap(payload_type, body, sender, step, cell, on_target, chunk, chunks,
+                                      bool(flags & FLAG_CELL_LIST))
         if msg is not None:
             self.accepted[KIND_NAMES[payload_type]] += 1
             self.last_repair = bool(flags & FLAG_REPAIR)
@@ -290,7 +306,8 @@ class KnowledgeCodec:
             return self._reject("cell", "detection outside the grid")
         return Detection(sender, step, cell, on_target, t)
 
-    def _decode_bitmap(self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks) -> BitmapChunk | None:
+    def _decode_bitmap(self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks, cell_list: bool
+                       ) -> BitmapChunk | None:
         if chunks != self.chunks:
             return self._reject("chunks", f"{chunks} bitmap chunks, the grid needs {self.chunks}")
         target = None
@@ -299,6 +316,15 @@ class KnowledgeCodec:
                 return self._reject("length", "request without a target")
             target, body = body[0], body[1:]
         nbits = min(CELLS_PER_CHUNK, self.width * self.height - chunk * CELLS_PER_CHUNK)
+        if cell_list:
+            if not body or len(body) != 1 + 2 * body[0]:
+                return self._reject("length", "cell list does not match its count")
+            offsets = np.frombuffer(body, dtype="<u2", offset=1)
+            if offsets.size and (int(offsets[-1]) >= nbits or (np.diff(offsets.astype(np.int64)) <= 0).any()):
+                return self._reject("cell", "cell list not increasing or outside the chunk")
+            bits = np.zeros(nbits, dtype=bool)
+            bits[offsets] = True
+            return BitmapChunk(sender, step, cell, on_target, chunk, chunks, bits, target)
         if len(body) != -(-nbits // 8):
             return self._reject("length", f"bitmap chunk of {len(body)} bytes, expected {-(-nbits // 8)}")
         bits = np.unpackbits(np.frombuffer(body, dtype=np.uint8), bitorder="little").astype(bool)

@@ -10,10 +10,12 @@ Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge
 - a vehicle that finds targets broadcasts a DETECTION at once; every `digest_every` steps it
   broadcasts its DIGEST (explored bitmap) and, if it knows any targets, a DETECTION listing them;
 - a vehicle that receives a digest showing cells it lacks sends a REQUEST (bitmap of the missing
-  cells) to the digest's sender, which answers with repair DELTAs of those cells (anything it knows,
-  its own or received), broadcast so every vehicle missing them benefits; with `push` (default) a
-  vehicle that receives a digest lacking cells it knows also sends them at once, which shortens
-  convergence under loss (docs/knowledge.md).
+  cells; at most one per digest chunk per `digest_every` steps) to the digest's sender, which
+  answers with repair DELTAs of those cells (anything it knows, its own or received), broadcast so
+  every vehicle missing them benefits; with `push` (default) a
+  vehicle that receives a digest lacking cells it already knew before the digest's step also sends
+  them at once (only the `push_fanout` vehicles following the digest's sender in id order do) (cells learnt this step may still be in flight, so they are not pushed), which
+  shortens convergence under loss (docs/knowledge.md). Steps are the swarm's common mission step.
 Every message carries the sender's position; positions merge newest-step-wins.
 
 Concurrency: none of its own. The owner calls `poll` (from its loop, or when `fileno()` is readable,
@@ -23,38 +25,51 @@ own id (echoes) are ignored. Bad bytes are counted in `codec.rejected`, never ra
 
 from __future__ import annotations
 
+import logging
 import select
 import socket
 from collections import Counter
 
 import numpy as np
 
+from swarmctl.errors import InputError
 from swarmctl.mavlink.knowledge_codec import BitmapChunk, KnowledgeCodec, chunk_mask
 from swarmctl.world.knowledge import Delta, Detection, Knowledge
 
+log = logging.getLogger("swarmctl.knowledge")
+
 Address = tuple[str, int]
+NEVER = np.iinfo(np.int64).max
+RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 
 
 class KnowledgeExchange:
     """Knowledge + a UDP socket on `host` that sends to `peer` (a radio or a MAVLink router)."""
 
     def __init__(self, knowledge: Knowledge, mission_id: int, peer: Address, *, system_id: int | None = None,
-                 digest_every: int = 5, push: bool = True, host: str = "127.0.0.1", port: int = 0):
+                 digest_every: int = 5, push: bool = True, push_fanout: int = 2, host: str = "127.0.0.1",
+                 port: int = 0):
         self.knowledge = knowledge
         self.vehicle_id = knowledge.vehicle_id
         self.peer = peer
         self.digest_every = int(digest_every)
         self.push = push
+        self.push_fanout = int(push_fanout)
+        self._now = 0  # the latest step given to `step`/`publish`
+        self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
+        self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
         sysid = knowledge.vehicle_id + 1 if system_id is None else system_id
         self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=sysid)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
             self.sock.bind((host, port))
             self.sock.setblocking(False)
-        except OSError:
+        except OSError as exc:
             self.sock.close()
-            raise
+            raise InputError(f"knowledge link: cannot open UDP {host}:{port} ({exc.strerror}); "
+                             "check the address and that the port is free") from None
         self.address: Address = self.sock.getsockname()
 
     # ----- life cycle -------------------------------------------------------------------------------
@@ -73,7 +88,14 @@ class KnowledgeExchange:
     # ----- sending ----------------------------------------------------------------------------------
     def _send(self, message, repair: bool = False) -> None:
         for frame in self.codec.frames(message, repair):
-            self.sock.sendto(frame, self.peer)
+            try:
+                self.sock.sendto(frame, self.peer)
+            except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
+                if not self.stats["send_errors"]:
+                    log.warning("knowledge: cannot send to %s (%s); further failures are only counted",
+                                self.peer, exc)
+                self.stats["send_errors"] += 1
+                continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
 
@@ -84,6 +106,7 @@ class KnowledgeExchange:
         self.knowledge.set_position(step, cell, on_target)
         if cells is not None:
             self.knowledge.sense(cells, phi, obstacle)
+        self._note_learned(step)
         self.publish(step)
         if targets is not None and len(targets):
             self.report_targets(targets, step)
@@ -96,13 +119,21 @@ class KnowledgeExchange:
         self._send(Detection(self.vehicle_id, step, cell, on_target, cells))
 
     def publish(self, step: int) -> None:
-        """Broadcast the delta; on digest steps also the digest and the known targets."""
+        """Broadcast the delta; on this vehicle's digest steps also the digest and the known targets.
+        Digests are staggered: vehicle v sends them when (step + v) % digest_every == 0."""
+        self._now = max(self._now, int(step))
         self._send(self.knowledge.take_delta())
         self.stats["deltas"] += 1
-        if self.digest_every > 0 and step % self.digest_every == 0:
+        if self.digest_every > 0 and step > 0 and (step + self.vehicle_id) % self.digest_every == 0:
             self.publish_digest()
 
+    def _note_learned(self, step: int) -> None:
+        """Remember when each cell became known (for the push rule)."""
+        fresh = self.knowledge.explored & (self._learned_at == NEVER)
+        self._learned_at[fresh] = step
+
     def publish_digest(self) -> None:
+        """Broadcast the explored-cell digest now (all chunks) and, if any, the known targets."""
         kn = self.knowledge
         pos = kn.own_position
         step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
@@ -126,6 +157,8 @@ class KnowledgeExchange:
                 data, _addr = self.sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
                 return handled
+            except ConnectionError:  # an ICMP error report from an earlier send: nothing to read
+                continue
             wait = 0.0
             handled += 1
             self.stats["received_packets"] += 1
@@ -146,12 +179,15 @@ class KnowledgeExchange:
         theirs = chunk_mask(message, kn.width, kn.height)
         if message.target is None:  # a digest: ask for what they have and we lack ...
             missing = theirs & ~kn.explored
-            if missing.any():
+            last = self._requested_at.get(message.index)
+            if missing.any() and (last is None or self._now - last >= max(self.digest_every, 1)):
+                self._requested_at[message.index] = self._now
                 self._request(message.sender, missing, message.index)
-            if self.push:  # ... and offer what we have and they lack
+            if self.push and self._pushes_to(message.sender):  # ... and offer what they lack and we knew
+                self._note_learned(self._now)
                 region = chunk_mask(BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)),
                                     kn.width, kn.height)
-                answer = kn.cells_delta(region & ~theirs)
+                answer = kn.cells_delta(region & ~theirs & (self._learned_at < message.step))
                 if len(answer):
                     self._send(answer, repair=True)
                     self.stats["pushes"] += 1
@@ -160,6 +196,14 @@ class KnowledgeExchange:
             if len(answer):
                 self._send(answer, repair=True)
                 self.stats["repairs"] += 1
+
+    def _pushes_to(self, sender: int) -> bool:
+        """Whether this vehicle is one of the `push_fanout` vehicles after `sender` in the cyclic order
+        of the ids it knows (so a digest draws a few pushes, not one from every vehicle)."""
+        ids = sorted({*self.knowledge.positions, self.vehicle_id, sender})
+        start = ids.index(sender)
+        after = [ids[(start + k) % len(ids)] for k in range(1, len(ids))]
+        return self.vehicle_id in after[: self.push_fanout]
 
     def _request(self, target: int, missing: np.ndarray, index: int) -> None:
         kn = self.knowledge

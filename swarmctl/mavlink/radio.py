@@ -30,6 +30,7 @@ import math
 import select
 import socket
 import threading
+import time
 from collections import Counter
 
 import numpy as np
@@ -66,6 +67,7 @@ class Radio:
         self._stop = threading.Event()
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
+            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 21)
             self.sock.bind((host, 0))
             self.sock.setblocking(False)
         except OSError:
@@ -195,3 +197,24 @@ class Radio:
         if rng is None:
             rng = self._rngs[key] = np.random.default_rng([self.seed, *key])
         return bool(rng.random() < p)
+
+
+def wait_quiet(radio: Radio, agents: list, timeout: float = 10.0) -> None:
+    """Poll every agent (KnowledgeExchange) until the radio has handled every datagram they sent and
+    each has read every datagram delivered to it, answers sent while polling included. Raises
+    TimeoutError after `timeout` seconds. For tests and demos that step a swarm in lock-step."""
+    deadline = time.monotonic() + timeout
+    while True:
+        for a in agents:
+            a.poll(0.0)
+        sent = sum(a.stats["sent_packets"] for a in agents)
+        received, delivered = radio.counts()
+        if received == sent and all(a.stats["received_packets"] == delivered.get(a.address, 0) for a in agents):
+            # nothing in flight: one more poll round must not read or send anything new
+            if sum(a.poll(0.0) for a in agents) == 0 and sum(a.stats["sent_packets"] for a in agents) == sent:
+                return
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"swarm not quiet after {timeout} s: radio got {received}/{sent} datagrams, "
+                               f"agents read {[a.stats['received_packets'] for a in agents]} of {delivered}")
+        if agents:
+            agents[0].poll(0.002)

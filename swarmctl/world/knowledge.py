@@ -200,9 +200,12 @@ class Knowledge:
 
     # ----- own updates ------------------------------------------------------------------------------
     def set_position(self, step: int, cell: tuple[int, int], on_target: bool = False) -> None:
-        """Record the own position (replaces the stored one only if not older, like any report)."""
+        """Record the own position: it replaces any stored one of the same step or older (the vehicle
+        knows best where it is); an older step than the stored one is ignored."""
         self._check_cells(_cells_array([cell]))
-        self._merge_position(self.vehicle_id, Position(int(step), (int(cell[0]), int(cell[1])), bool(on_target)))
+        old = self.positions.get(self.vehicle_id)
+        if old is None or int(step) >= old.step:
+            self.positions[self.vehicle_id] = Position(int(step), (int(cell[0]), int(cell[1])), bool(on_target))
 
     def sense(self, cells, phi, obstacle) -> int:
         """Own observation of `cells` (N, 2) with their true phi (float) and obstacle flags.
