@@ -19,15 +19,17 @@ from swarmctl.bench import bench_command  # noqa: E402
 from swarmctl.geo.cli import plan_command  # noqa: E402
 from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
+from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
 
-for command in (eval_command, train_command, bench_command, plan_command, mock_vehicle_command):
+for command in (eval_command, train_command, bench_command, plan_command, mock_vehicle_command, demo_command,
+                fly_command, agent_command):
     cli.add_command(command)
 
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line on stderr and exit status 2."""
     try:
-        cli.main(args=argv, prog_name="swarmctl", standalone_mode=False)
+        result = cli.main(args=argv, prog_name="swarmctl", standalone_mode=False)
     except InputError as exc:
         click.echo(f"swarmctl: error: {exc}", err=True)
         return EXIT_BAD_INPUT
@@ -39,7 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     except click.ClickException as exc:
         exc.show()
         return exc.exit_code
-    return 0
+    # without standalone mode click hands back a command's exit status (click.exceptions.Exit) here
+    return result if isinstance(result, int) else 0
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@
     connection = "udpin:0.0.0.0:14551"
     sysid = 1
     autopilot = "ardupilot"     # ardupilot | px4
+    # detector = "udp:127.0.0.1:14650"   # optional: a local socket its detector reports to (PX4 needs it)
 
 Relative paths are relative to the mission file.
 """
@@ -40,7 +41,7 @@ OBSERVATION_WINDOW = 20  # F: the controller observes 20 x 20 windows, like the 
 _MISSION_KEYS = {"name", "id", "grid", "area", "buildings", "cell_size", "altitude", "policy", "step_period",
                  "step_timeout", "time_limit", "end_action", "signing_key"}
 _KNOWLEDGE_KEYS = {"channel", "digest_every"}
-_VEHICLE_KEYS = {"name", "connection", "sysid", "autopilot"}
+_VEHICLE_KEYS = {"name", "connection", "sysid", "autopilot", "detector"}
 _TOP_KEYS = {"mission", "knowledge", "vehicles"}
 
 
@@ -50,6 +51,7 @@ class VehicleSpec:
     connection: str
     sysid: int
     autopilot: str = "ardupilot"
+    detector: str | None = None  # udp:HOST:PORT where its detector sends reports (else its MAVLink link)
 
 
 @dataclass
@@ -192,6 +194,13 @@ def load_mission(path: str | Path) -> MissionConfig:
         autopilot = v.get("autopilot", "ardupilot")
         if autopilot not in AUTOPILOTS:
             raise _fail(path, f"{w}autopilot", f"= {autopilot!r} is unknown", f"use one of {', '.join(AUTOPILOTS)}")
+        detector = v.get("detector")
+        if detector is not None:
+            host, _, port = str(detector).removeprefix("udp:").rpartition(":")
+            if not isinstance(detector, str) or not detector.startswith("udp:") or not host or not port.isdigit() \
+                    or not 0 < int(port) < 65536:
+                raise _fail(path, f"{w}detector", f"= {detector!r} is not a UDP address",
+                            'write for example detector = "udp:127.0.0.1:14650"')
         for other in vehicles:
             if other.name == name:
                 raise _fail(path, f"{w}name", f"{name!r} is listed twice", "give every vehicle its own name")
@@ -201,7 +210,7 @@ def load_mission(path: str | Path) -> MissionConfig:
             if other.sysid == sysid:
                 raise _fail(path, f"{w}sysid", f"{sysid} is also {other.name!r}'s system id",
                             "system ids must be unique in a swarm (SYSID_THISMAV)")
-        vehicles.append(VehicleSpec(name, connection, sysid, autopilot))
+        vehicles.append(VehicleSpec(name, connection, sysid, autopilot, detector))
 
     return MissionConfig(
         path=path.resolve(), name=str(mission.get("name", path.stem)), mission_id=mission_id, vehicles=vehicles,

@@ -1,0 +1,198 @@
+"""`swarmctl demo`, `swarmctl fly` and `swarmctl agent`: the controller on the command line.
+
+Exit status: 0 mission complete (every live vehicle hovered on a distinct target), 1 it ran but did
+not complete (time limit, vehicles failed), 2 bad input, 130 interrupted (after the end actions,
+with the recording closed).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import click
+
+import swarmctl
+from swarmctl.errors import EXIT_FAILED, InputError
+from swarmctl.mission.config import END_ACTIONS
+
+ROOT = Path(swarmctl.__file__).resolve().parent.parent
+DEMO_GRID = Path("missions/chicago-loop/grid.npz")
+DEMO_MODEL = Path("models/cluster-2uav.pt")
+
+
+def _find(relative: Path) -> Path | None:
+    for base in (Path.cwd(), ROOT):
+        if (base / relative).is_file():
+            return base / relative
+    return None
+
+
+def default_policy() -> tuple[str, str | None]:
+    """The shipped model when it is there and fits the controller, else the frontier planner
+    (with the reason, to tell the user)."""
+    model = _find(DEMO_MODEL)
+    if model is None:
+        return "frontier", f"{DEMO_MODEL} is not there"
+    from swarmctl.mission.decide import FieldPolicy
+
+    try:
+        FieldPolicy(f"ddql:{model}")
+    except InputError as exc:
+        return "frontier", f"{DEMO_MODEL} cannot be used ({exc})"
+    return f"ddql:{model}", None
+
+
+def _out_folder(out: Path | None, name: str) -> Path:
+    if out is not None:
+        return out
+    return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+
+
+def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
+    if not quiet:
+        found = len(summary["targets_found"])
+        click.echo(f"{summary['outcome']}: {found} target{'s' if found != 1 else ''} found, "
+                   f"{summary['steps']} steps in {summary['search_time_s']:.1f} s; recording in {folder}")
+    if code:
+        raise click.exceptions.Exit(code)
+
+
+def view_options(func):
+    func = click.option("--no-live", is_flag=True, help="No live table; progress lines only (for logs).")(func)
+    return click.option("--quiet", "-q", is_flag=True, help="Print nothing while flying.")(func)
+
+
+@click.command("demo")
+@click.option("--uavs", "--vehicles", "uavs", type=int, default=3, show_default=True, help="Mock vehicles.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Where the targets hide, and the policy's draws.")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Recording folder (default runs/demo-YYYYmmdd-HHMMSS).")
+@click.option("--policy", default=None,
+              help=f"ddql:PATH[:tau=T], ddql-greedy:PATH, frontier or random. Default: ddql:{DEMO_MODEL} "
+                   "if that file exists and takes 20 x 20 observations, else frontier.")
+@click.option("--mission", "mission_file", type=click.Path(path_type=Path), default=None,
+              help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].")
+@click.option("--speedup", type=float, default=20.0, show_default=True,
+              help="Mock physics runs this many times faster than the wall clock.")
+@click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
+@click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
+@click.option("--time-limit", type=float, default=300.0, show_default=True, help="Search time limit, seconds.")
+@view_options
+def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mission_file: Path | None,
+                 speedup: float, targets: int | None, end_action: str, time_limit: float, quiet: bool,
+                 no_live: bool) -> None:
+    """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
+
+    Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
+    policy, hovers over them, then carries out the end action. Writes the recording (mission.tlog,
+    events.jsonl, summary.json, grid.npz) and mission.png to --out.
+    """
+    from swarmctl.geo.grid import GeoGrid
+    from swarmctl.mission.decide import FieldPolicy
+    from swarmctl.mission.service import LiveView, draw_mission, run_controller
+    from swarmctl.mission.sim import SimSwarm
+
+    if not 1 <= uavs <= 50:
+        raise InputError(f"--uavs {uavs}: the demo flies 1..50 mock vehicles")
+    if not speedup > 0:
+        raise InputError(f"--speedup {speedup}: must be a number > 0")
+    if not time_limit > 0:
+        raise InputError(f"--time-limit {time_limit}: must be a number of seconds > 0")
+    if targets is not None and targets < 1:
+        raise InputError(f"--targets {targets}: hide at least one target")
+    note = None
+    if policy is None:
+        policy, note = default_policy()
+    FieldPolicy(policy)  # bad policies fail here, before anything starts
+    if note and not quiet:
+        click.echo(f"demo: {note}; flying with the frontier planner", err=True)
+    settings: dict = {}
+    if mission_file is not None:
+        from swarmctl.mission.config import load_mission
+        from swarmctl.mission.service import load_grid
+
+        cfg = load_mission(mission_file)
+        grid, grid_file = load_grid(cfg), cfg.grid
+        settings = dict(altitude=float(cfg.altitude), mission_id=cfg.mission_id)
+    else:
+        grid_file = _find(DEMO_GRID)
+        if grid_file is None:
+            raise InputError(f"{DEMO_GRID} not found: run the demo from the project folder, or give --mission FILE")
+        grid = GeoGrid.load(grid_file)
+    folder = _out_folder(out, "demo")
+    try:
+        swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **settings)
+        if targets is not None and targets != uavs:
+            from swarmctl.mission.sim import hide_targets
+
+            swarm.targets = hide_targets(grid, targets, seed, swarm.starts)
+    except ValueError as exc:
+        raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
+    with swarm:
+        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file)
+        if mission_file is not None:
+            plan.name, plan.mission_file = cfg.name, cfg.path
+        if not quiet:
+            click.echo(f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
+                       f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x -> {folder}", err=True)
+        code, summary = run_controller(
+            plan, folder, LiveView(live=not no_live, quiet=quiet),
+            extra_summary=lambda c: {"hidden_targets": swarm.targets.tolist(), "speedup": speedup, "seed": seed,
+                                     "knowledge_radio": {"forwarded": swarm.radio.forwarded,
+                                                         "lost": swarm.radio.dropped}})
+    draw_mission(folder, grid, swarm.targets)
+    _finish(code, folder, summary, quiet)
+
+
+@click.command("fly")
+@click.argument("mission_file", type=click.Path(path_type=Path))
+@click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="Recording folder (default runs/<mission name>-YYYYmmdd-HHMMSS).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the policy's random draws.")
+@view_options
+def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
+    """Fly a mission with real vehicles (ground mode: this process flies every vehicle)."""
+    from swarmctl.mission.config import load_mission
+    from swarmctl.mission.service import LiveView, describe, plan_from_config, run_controller
+
+    cfg = load_mission(mission_file)
+    plan = plan_from_config(cfg, seed=seed)
+    for line in describe(plan):
+        click.echo(line)
+    if not yes and not click.confirm("Fly this mission?", default=False):
+        click.echo("not flown", err=True)
+        raise click.exceptions.Exit(EXIT_FAILED)
+    folder = _out_folder(out, plan.name)
+    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
+    _finish(code, folder, summary, quiet)
+
+
+@click.command("agent")
+@click.argument("mission_file", type=click.Path(path_type=Path))
+@click.option("--vehicle", "vehicles", multiple=True, required=True,
+              help="Name of the vehicle (from the mission's [[vehicles]]) this process flies; repeatable.")
+@click.option("--detector", default=None,
+              help="Local UDP socket the onboard detector writes its TUNNEL reports to, udp:HOST:PORT "
+                   "(default: reports arrive on the vehicle's MAVLink link).")
+@click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Recording folder.")
+@click.option("--seed", type=int, default=0, show_default=True)
+@view_options
+def agent_command(mission_file: Path, vehicles: tuple[str, ...], detector: str | None, yes: bool,
+                  out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
+    """Onboard mode: fly one vehicle (on its companion computer); peers over the knowledge channel."""
+    from swarmctl.mission.config import load_mission
+    from swarmctl.mission.service import LiveView, describe, plan_from_config, run_controller
+
+    cfg = load_mission(mission_file)
+    plan = plan_from_config(cfg, only=list(vehicles), detector=detector, seed=seed)
+    for line in describe(plan):
+        click.echo(line)
+    if not yes and not click.confirm("Fly?", default=False):
+        click.echo("not flown", err=True)
+        raise click.exceptions.Exit(EXIT_FAILED)
+    folder = _out_folder(out, f"{plan.name}-{'-'.join(vehicles)}")
+    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
+    _finish(code, folder, summary, quiet)

@@ -1,0 +1,141 @@
+"""Choosing moves in the field: the policies that run on one vehicle's Knowledge alone.
+
+The controller has no simulator state: each agent knows only its Knowledge (explored cells, phi and
+obstacles where explored, the last known cells of the others, reported targets). Supported here:
+
+- `ddql:PATH[:tau=T]`, `ddql-greedy:PATH`: the Q-network on each agent's 3 x F x F observation
+  (Knowledge.observation, the simulator's one observation builder), batched over the agents of
+  the process in one forward pass;
+- `frontier`: the frontier planner (swarmctl.policy.planners) run by each agent on its own
+  knowledge: known targets not held by a hovering vehicle are assigned nearest pair first, the
+  others go to the nearest unexplored cell, spread apart by claims;
+- `random`: uniform over the five moves.
+
+`la:N` and `lawnmower` read simulator-only state (the value of unexplored cells behind the true
+target mask, fixed sweep lanes from the start cells) and are refused for missions; use them in
+`swarmctl eval`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from swarmctl.errors import InputError
+from swarmctl.policy import planners
+from swarmctl.policy.ddql import softmax_sample
+from swarmctl.world.knowledge import Knowledge
+from swarmctl.world.moves import MOVES
+
+FIELD_POLICIES = "ddql:PATH[:tau=T], ddql-greedy:PATH, frontier, random"
+
+
+@dataclass
+class Choice:
+    move: int
+    obs_digest: str | None = None
+    q: list[float] | None = None
+
+
+class _FieldView:
+    """The attributes the frontier planner reads: batch 1, the given vehicles' cells in that order."""
+
+    def __init__(self, kn: Knowledge, cells: list, targets: np.ndarray, window: int, fov: float):
+        self.batch, self.uavs = 1, len(cells)
+        self.width, self.height = kn.width, kn.height
+        self.cfg = SimpleNamespace(window=window, fov=fov)
+        self.pos = np.array(cells, dtype=np.int64).reshape(1, -1, 2)
+        self.explored = np.broadcast_to(kn.explored, (1, self.uavs, kn.width, kn.height))
+        # a vehicle hovering on a target stays there: to the others its cell is an obstacle to go round
+        blocked = kn.obstacle.copy()
+        for p in kn.peers.values():
+            if p.on_target and p.cell is not None:
+                blocked[p.cell] = True
+        self._obstacles = np.broadcast_to(blocked, (1, self.uavs, kn.width, kn.height))
+        self.targets = np.asarray(targets, dtype=np.int64).reshape(1, -1, 2)
+
+    def known_obstacles(self) -> np.ndarray:
+        return self._obstacles
+
+
+def _frontier_move(kn: Knowledge, rng: np.random.Generator, window: int, fov: float) -> int:
+    """The frontier planner's move for this agent, from its own knowledge.
+
+    The vehicles it knows of (itself included; those hovering on a target are done and left out) are
+    taken in mission order, as the centralised planner would: known targets go nearest pair first,
+    and the exploration claims of the vehicles before this one are respected. Only the distance maps
+    the decision needs are computed."""
+    own = kn.own_position
+    me_id = kn.vehicle_id
+    peers = {v: p.cell for v, p in kn.peers.items() if p.cell is not None and not p.on_target}
+    order = sorted([me_id, *peers])
+    cells = [own.cell if v == me_id else peers[v] for v in order]
+    me = order.index(me_id)
+    held = {p.cell for p in kn.peers.values() if p.on_target and p.cell is not None}
+    targets = np.array([c for c in sorted(kn.targets) if c not in held], dtype=np.int64).reshape(-1, 2)
+    has_target = np.zeros((1, len(cells)), dtype=bool)
+    goal = None
+    dist = None
+    if len(targets):
+        view = _FieldView(kn, cells, targets, window, fov)
+        dist = planners._distances_from_vehicles(view)
+        goals, has_target = planners._target_goals(view, dist)
+        if has_target[0, me]:
+            goal = goals[0, me]
+    if goal is None:
+        first = _FieldView(kn, cells[: me + 1], targets, window, fov)
+        d = dist[:, : me + 1] if dist is not None else planners._distances_from_vehicles(first)
+        explore, _ = planners._nearest_unexplored(first, d, ~has_target[:, : me + 1], rng, spread=2 * fov)
+        goal = explore[0, me]
+    alone = _FieldView(kn, [own.cell], targets, window, fov)
+    return int(planners._navigate(alone, np.asarray(goal, dtype=np.int64).reshape(1, 1, 2), rng)[0, 0])
+
+
+class FieldPolicy:
+    """One policy for every agent of a process; `choose` decides for all of them at once."""
+
+    def __init__(self, spec: str, seed: int = 0, window: int = 20, fov: float = 3.0):
+        self.spec = spec.strip()
+        self.rng = np.random.default_rng(seed)
+        self.window, self.fov = window, fov
+        self.net = None
+        self.tau: float | None = None
+        kind = self.spec.partition(":")[0]
+        if kind in ("ddql", "ddql-greedy"):
+            from swarmctl.policy.ddql import make_ddql_policy
+
+            p = make_ddql_policy(self.spec)
+            if p.net.window != window:
+                raise InputError(f"policy {self.spec!r}: the model was trained for {p.net.window} x {p.net.window} "
+                                 f"observations, the controller builds {window} x {window}; use a model trained "
+                                 f"with --window {window}")
+            self.net, self.tau, self.kind = p, p.tau, "ddql"
+        elif self.spec in ("frontier", "random"):
+            self.kind = self.spec
+        else:
+            raise InputError(f"policy {self.spec!r} cannot fly a mission: use one of {FIELD_POLICIES} "
+                             "(la:N and lawnmower need the simulator's state)")
+
+    def choose(self, knowledges: list[Knowledge]) -> list[Choice]:
+        if not knowledges:
+            return []
+        if self.kind == "random":
+            return [Choice(int(m)) for m in self.rng.integers(0, len(MOVES), size=len(knowledges))]
+        if self.kind == "frontier":
+            return [Choice(_frontier_move(kn, self.rng, self.window, self.fov)) for kn in knowledges]
+        obs = np.stack([kn.observation(self.window) for kn in knowledges])[None]  # (1, N, 3, F, F)
+        q = self.net.q_values(np.ascontiguousarray(obs, dtype=np.float32))[0]  # (N, 5)
+        if self.tau is None:
+            moves = q.argmax(axis=1)
+        else:
+            moves = softmax_sample(q, self.tau, self.rng)
+        return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv])
+                for m, o, qv in zip(moves, obs[0], q)]
+
+
+def observation_digest(kn: Knowledge, window: int = 20) -> str:
+    """sha1 (16 hex digits) of the agent's observation tensor, for the event log."""
+    return hashlib.sha1(np.ascontiguousarray(kn.observation(window)).tobytes()).hexdigest()[:16]

@@ -1,0 +1,136 @@
+"""The mission recording: one folder per mission.
+
+    mission.tlog     every MAVLink packet the controller sent or received (vehicle links and the
+                     knowledge channel), in the standard telemetry-log format: for each packet an
+                     8-byte big-endian timestamp (microseconds since 1970) then the raw packet, as
+                     MAVProxy and QGroundControl write it (pymavlink's mavlogdump.py reads it)
+    events.jsonl     one JSON object per line: state changes, link events, guard refusals and one
+                     "step" record per decision step (each vehicle's cell, observation digest,
+                     Q-values, chosen and guarded move, knowledge received)
+    mission.toml     a copy of the mission file (when there is one)
+    grid.npz         a copy of the grid
+    summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+_TS = struct.Struct(">Q")
+
+
+def _jsonable(value: Any) -> Any:
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float):
+        return round(value, 6)
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+class Recorder:
+    """Writes the mission folder; every method is safe to call from the loop and from link threads."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self._lock = threading.Lock()
+        self._tlog = (self.folder / "mission.tlog").open("wb")
+        self._events = (self.folder / "events.jsonl").open("w", encoding="utf-8")
+        self._parser = mavlink2.MAVLink(None)
+        self._parser.robust_parsing = True
+        self.packets = 0
+        self.events = 0
+        self.closed = False
+
+    # --- MAVLink ---------------------------------------------------------------------------------------
+    def packet(self, data: bytes, when: float | None = None) -> None:
+        """One raw MAVLink packet (a single frame)."""
+        stamp = int((time.time() if when is None else when) * 1e6)
+        with self._lock:
+            if self.closed:
+                return
+            self._tlog.write(_TS.pack(stamp) + bytes(data))
+            self.packets += 1
+
+    def datagram(self, data: bytes) -> None:
+        """A datagram that may hold several frames: each frame is logged as its own packet."""
+        with self._lock:
+            try:
+                msgs = self._parser.parse_buffer(bytes(data)) or []
+            except Exception:
+                msgs = []
+            if self._parser.buf_len():
+                self._parser.buf, self._parser.buf_index = bytearray(), 0
+                self._parser.expected_length = mavlink2.HEADER_LEN_V1 + 2
+        for m in msgs:
+            if m.get_type() != "BAD_DATA":
+                self.packet(m.get_msgbuf())
+
+    def tap_link(self, link: Any) -> None:
+        """Record every packet a MavlinkLink receives (listener) and sends (its writer)."""
+        link.add_listener(lambda msg: self.packet(msg.get_msgbuf()))
+        mav = link.mav
+        inner = mav.file
+        recorder = self
+
+        class _Tee:
+            def write(self, data: bytes) -> None:
+                inner.write(data)
+                recorder.packet(data)
+
+        mav.file = _Tee()
+
+    # --- events ----------------------------------------------------------------------------------------
+    def event(self, kind: str, **fields: Any) -> None:
+        line = json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=(",", ":"))
+        with self._lock:
+            if self.closed:
+                return
+            self._events.write(line + "\n")
+            self.events += 1
+
+    def flush(self) -> None:
+        with self._lock:
+            if not self.closed:
+                self._tlog.flush()
+                self._events.flush()
+
+    # --- files -----------------------------------------------------------------------------------------
+    def copy_inputs(self, mission_file: Path | None, grid_file: Path | None, grid: Any = None) -> None:
+        if mission_file is not None and Path(mission_file).is_file():
+            shutil.copyfile(mission_file, self.folder / "mission.toml")
+        if grid_file is not None and Path(grid_file).is_file():
+            shutil.copyfile(grid_file, self.folder / "grid.npz")
+        elif grid is not None:
+            grid.save(self.folder / "grid.npz")
+
+    def write_summary(self, summary: dict) -> Path:
+        path = self.folder / "summary.json"
+        path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n", encoding="utf-8")
+        return path
+
+    def close(self) -> None:
+        with self._lock:
+            if self.closed:
+                return
+            self.closed = True
+            self._tlog.close()
+            self._events.close()

@@ -1,0 +1,231 @@
+"""Running a mission from the command line: mission file -> plan, signals, the live view, the picture."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, InputError
+from swarmctl.mission.config import MissionConfig
+from swarmctl.mission.controller import HOVER, Controller, MissionPlan
+from swarmctl.mission.decide import FieldPolicy
+from swarmctl.mission.recorder import Recorder
+
+OUTCOME_EXIT = {"complete": EXIT_OK, "partial": EXIT_FAILED, "time limit": EXIT_FAILED, "failed": EXIT_FAILED,
+                "interrupted": EXIT_INTERRUPTED}
+
+
+def load_grid(cfg: MissionConfig) -> Any:
+    from swarmctl.geo.grid import GeoGrid, make_grid
+
+    if cfg.grid is not None:
+        return GeoGrid.load(cfg.grid)
+    from swarmctl.geo.areas import load_area
+    from swarmctl.geo.buildings import load_buildings
+
+    area = load_area(cfg.area)
+    buildings = load_buildings(cfg.buildings) if cfg.buildings is not None else None
+    grid, _report = make_grid(area, cell=cfg.cell_size, altitude=cfg.altitude, buildings=buildings)
+    return grid
+
+
+def channel_address(value: str | None, where: str) -> tuple[str, int]:
+    """The knowledge channel (udpout:HOST:PORT) as a (host, port) to send to."""
+    from swarmctl.mavlink.codec import parse_connection
+
+    if value is None:
+        return ("127.0.0.1", 14600)
+    ep = parse_connection(value, field=where)
+    if ep.kind != "udpout":
+        raise InputError(f"{where} = {value!r}: the knowledge channel is a UDP address the agents send to; "
+                         'write for example "udpout:127.0.0.1:14600" (a MAVLink router or radio)')
+    return (ep.host, int(ep.port))
+
+
+def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector: str | None = None,
+                     seed: int = 0) -> MissionPlan:
+    """A MissionPlan from a validated mission file; `only` keeps some vehicles (onboard mode)."""
+    from swarmctl.mavlink.codec import load_signing_key
+
+    grid = load_grid(cfg)
+    key = load_signing_key(cfg.signing_key, field=f"{cfg.path}: mission.signing_key") if cfg.signing_key else None
+    FieldPolicy(cfg.policy)  # refuses policies that cannot fly (with the fix), before anything flies
+    names = [v.name for v in cfg.vehicles]
+    keep = list(range(len(names)))
+    if only:
+        for n in only:
+            if n not in names:
+                raise InputError(f"--vehicle {n!r} is not in {cfg.path}; use one of {', '.join(names)}")
+        keep = [names.index(n) for n in only]
+    detectors = {i: parse_detector(cfg.vehicles[i].detector) for i in keep if cfg.vehicles[i].detector}
+    if detector:
+        detectors.update({i: parse_detector(detector) for i in keep})
+    plan = MissionPlan(name=cfg.name, mission_id=cfg.mission_id, grid=grid, vehicles=list(cfg.vehicles),
+                       policy=cfg.policy, altitude=float(cfg.altitude), step_period=float(cfg.step_period),
+                       step_timeout=float(cfg.step_timeout), time_limit=float(cfg.time_limit),
+                       end_action=cfg.end_action, signing_key=key,
+                       knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
+                       digest_every=cfg.digest_every, seed=seed, grid_file=cfg.grid, mission_file=cfg.path,
+                       only=keep if only else None, detectors=detectors)
+    return plan
+
+
+def parse_detector(value: str) -> tuple[str, int]:
+    host, _, port = value.removeprefix("udp:").rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not host or not 0 < number < 65536:
+        raise InputError(f"--detector {value!r}: write udp:HOST:PORT, e.g. udp:127.0.0.1:14650")
+    return host, number
+
+
+def describe(plan: MissionPlan) -> list[str]:
+    g = plan.grid
+    lines = [f"mission {plan.name!r} (id {plan.mission_id}), policy {plan.policy}",
+             f"grid {g.width} x {g.height} cells of {g.cell:g} m, {int(g.blocked.sum())} blocked"
+             + (f", from {plan.grid_file}" if plan.grid_file else ""),
+             f"altitude {plan.altitude:g} m above home, end action {plan.end_action}, time limit {plan.time_limit:g} s",
+             f"knowledge channel udp:{plan.knowledge_peer[0]}:{plan.knowledge_peer[1]}"
+             if plan.knowledge_peer else "knowledge channel: default"]
+    for i, v in enumerate(plan.vehicles):
+        if plan.only is not None and i not in plan.only:
+            continue
+        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {v.autopilot}, {v.connection}")
+    return lines
+
+
+class LiveView:
+    """A table per vehicle (state, cell, battery, link, targets) redrawn each step on a terminal, and a
+    progress line; `live=False` keeps only the progress lines, `quiet=True` prints nothing."""
+
+    def __init__(self, stream: TextIO = sys.stderr, live: bool = True, quiet: bool = False, every: float = 2.0):
+        self.stream, self.quiet, self.every = stream, quiet, every
+        self.live = live and not quiet and stream.isatty()
+        self._lines = 0
+        self._last = 0.0
+
+    def __call__(self, c: Controller) -> None:
+        if self.quiet:
+            return
+        now = time.monotonic()
+        found = len(set().union(*(a.knowledge.targets for a in c.agents))) if c.agents else 0
+        hovering = sum(a.state == HOVER or a.end_state == "hovering on target" for a in c.agents)
+        elapsed = now - c.search_started if c.search_started else 0.0
+        progress = (f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  "
+                    f"{elapsed:.1f} s" + (f"  -> {c.outcome}" if c.outcome else ""))
+        if not self.live:
+            if now - self._last >= self.every or c.outcome:
+                self._last = now
+                print(progress, file=self.stream, flush=True)
+            return
+        rows = [f"{'vehicle':<10} {'state':<12} {'cell':<9} {'battery':>7} {'link':<5} {'targets':>7}"]
+        for a in c.agents:
+            cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
+            battery = a.battery()
+            rows.append(f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
+                        f"{a.link_text():<5} {a.targets_known:>7}")
+        rows.append(progress)
+        out = (f"\x1b[{self._lines}F\x1b[J" if self._lines else "") + "\n".join(rows) + "\n"
+        self.stream.write(out)
+        self.stream.flush()
+        self._lines = len(rows)
+
+
+def run_controller(plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
+                   ) -> tuple[int, dict]:
+    """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording; exit status."""
+    rec = Recorder(folder)
+    rec.copy_inputs(plan.mission_file, plan.grid_file, plan.grid)
+    controller = Controller(plan, rec, view=view)
+
+    async def main() -> str:
+        loop = asyncio.get_running_loop()
+        installed = []
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                loop.add_signal_handler(sig, controller.stop)
+                installed.append(sig)
+            except (NotImplementedError, RuntimeError, ValueError):  # not the main thread, or Windows
+                pass
+        try:
+            return await controller.run()
+        finally:
+            for sig in installed:
+                loop.remove_signal_handler(sig)
+
+    try:
+        outcome = asyncio.run(main())
+        summary = controller.summary(extra_summary(controller) if extra_summary else None)
+        rec.write_summary(summary)
+        write_targets_geojson(folder / "targets.geojson", summary)
+    finally:
+        rec.close()
+    return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
+
+
+def write_targets_geojson(path: Path, summary: dict) -> Path:
+    """The targets found as GeoJSON points (lon, lat), with their cell and the step of the first report."""
+    import json
+
+    features = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(t["lon"], 7), round(t["lat"], 7)]},
+                 "properties": {"cell_x": t["cell"][0], "cell_y": t["cell"][1], "first_step": t["step"],
+                                "mission": summary["mission"]}} for t in summary["targets_found"]]
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": features}, indent=1) + "\n")
+    return path
+
+
+def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out: Path | None = None) -> Path:
+    """mission.png: the grid, blocked cells, each vehicle's path, the targets found (and hidden)."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines() if line]
+    paths: dict[str, list] = {}
+    for e in events:
+        if e["event"] == "state" and e.get("cell") is not None:
+            paths.setdefault(e["vehicle"], []).append(e["cell"])
+        if e["event"] == "step":
+            for v in e["vehicles"] + e.get("others", []):
+                if v.get("cell") is not None:
+                    paths.setdefault(v["vehicle"], []).append(v["cell"])
+    summary = json.loads((folder / "summary.json").read_text())
+    for v in summary["vehicles"]:
+        if v.get("cell") is not None:
+            paths.setdefault(v["name"], []).append(v["cell"])
+    fig, ax = plt.subplots(figsize=(7, 7))
+    ax.imshow(grid.blocked.T, origin="lower", cmap="Greys", vmin=0, vmax=1.6,
+              extent=(-0.5, grid.width - 0.5, -0.5, grid.height - 0.5))
+    for name, cells in sorted(paths.items()):
+        xy = np.array(cells, dtype=float)
+        line, = ax.plot(xy[:, 0], xy[:, 1], "-", lw=1.5, alpha=0.85, label=name)
+        ax.plot(xy[0, 0], xy[0, 1], "o", color=line.get_color(), ms=6)
+        ax.plot(xy[-1, 0], xy[-1, 1], "s", color=line.get_color(), ms=8, mfc="none", mew=2)
+    if hidden is not None and len(hidden):
+        ax.plot(hidden[:, 0], hidden[:, 1], "x", color="tab:red", ms=9, mew=2, label="hidden target")
+    found = np.array([t["cell"] for t in summary["targets_found"]], dtype=float).reshape(-1, 2)
+    if len(found):
+        ax.plot(found[:, 0], found[:, 1], "*", color="gold", mec="black", ms=16, label="target found")
+    ax.set_xlim(-0.5, grid.width - 0.5)
+    ax.set_ylim(-0.5, grid.height - 0.5)
+    ax.set_xlabel(f"x (cells of {grid.cell:g} m, east)")
+    ax.set_ylabel("y (cells, north)")
+    ax.set_title(f"{summary['mission']}: {summary['outcome']}, {len(found)} targets found, "
+                 f"{summary['steps']} steps, {summary['search_time_s']:.0f} s")
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
+    fig.tight_layout()
+    path = out or folder / "mission.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,154 @@
+"""A simulated swarm for the demo and the tests: mock autopilots over loopback UDP carrying a hidden
+scenario, a loopback radio for the knowledge channel, and the MissionPlan that flies them.
+
+The controller side is the real one: it talks to the mocks over UDP exactly as it would to real
+vehicles and learns about targets only from the mocks' detector reports.
+"""
+
+from __future__ import annotations
+
+import socket
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from swarmctl.mavlink.mock import MockAutopilot
+from swarmctl.mavlink.radio import Radio
+from swarmctl.mission.config import VehicleSpec
+from swarmctl.mission.controller import MissionPlan
+from swarmctl.mission.detector import SimDetector
+from swarmctl.world.channel import Channel
+
+HOME_AMSL = 180.0  # metres; the Chicago Loop is about 180 m above sea level
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _region(grid: Any) -> np.ndarray:
+    free = grid.largest_free_region()
+    if not free.any():
+        raise ValueError("the grid has no free cell")
+    return free
+
+
+def start_cells(grid: Any, count: int) -> list[tuple[int, int]]:
+    """Launch cells along the south edge of the largest free region, two cells apart where possible."""
+    free = _region(grid)
+    cells = sorted(((int(x), int(y)) for x, y in zip(*np.nonzero(free))), key=lambda c: (c[1], c[0]))
+    chosen: list[tuple[int, int]] = []
+    for spacing in (2, 1):
+        chosen = []
+        for c in cells:
+            if all(abs(c[0] - o[0]) + abs(c[1] - o[1]) >= spacing for o in chosen):
+                chosen.append(c)
+                if len(chosen) == count:
+                    return chosen
+    raise ValueError(f"the grid's free region has room for {len(chosen)} vehicles, not {count}")
+
+
+def hide_targets(grid: Any, count: int, seed: int, avoid: list[tuple[int, int]], min_distance: int = 6
+                 ) -> np.ndarray:
+    """`count` distinct target cells in the largest free region, at least `min_distance` cells
+    (Manhattan) from every launch cell, drawn with `seed`."""
+    rng = np.random.default_rng(seed)
+    free = _region(grid)
+    xs, ys = np.nonzero(free)
+    ok = np.ones(len(xs), dtype=bool)
+    for ax, ay in avoid:
+        ok &= (np.abs(xs - ax) + np.abs(ys - ay)) >= min_distance
+    if ok.sum() < count:
+        ok[:] = True
+        for ax, ay in avoid:
+            ok &= (xs != ax) | (ys != ay)
+    idx = rng.choice(np.nonzero(ok)[0], size=count, replace=False)
+    return np.stack([xs[idx], ys[idx]], axis=1).astype(np.int64)
+
+
+@dataclass
+class SimSwarm:
+    """Mock vehicles (ArduPilot by default; "px4" entries in `autopilots` fly through MAVSDK) at
+    distinct launch cells of `grid`, with `targets` hidden in their detectors."""
+
+    grid: Any
+    uavs: int = 3
+    seed: int = 0
+    speedup: float = 20.0
+    altitude: float = 40.0
+    mission_id: int = 7
+    targets: np.ndarray | None = None
+    autopilots: list[str] | None = None
+    channel: Channel | None = None
+    gcs_failsafe: float | None = 5.0
+    speed: float = 10.0  # m/s, a usual cruise speed for search quadcopters
+    mocks: list[MockAutopilot] = field(default_factory=list)
+    detectors: list[SimDetector] = field(default_factory=list)
+    specs: list[VehicleSpec] = field(default_factory=list)
+    detector_ports: dict[int, tuple[str, int]] = field(default_factory=dict)
+    radio: Radio | None = None
+
+    def __post_init__(self) -> None:
+        self.starts = start_cells(self.grid, self.uavs)
+        if self.targets is None:
+            self.targets = hide_targets(self.grid, self.uavs, self.seed, self.starts)
+        self.targets = np.asarray(self.targets, dtype=np.int64).reshape(-1, 2)
+        self.autopilots = list(self.autopilots or ["ardupilot"] * self.uavs)
+
+    def start(self) -> "SimSwarm":
+        try:
+            self.radio = Radio(self.channel or Channel("ideal"), seed=self.seed)
+            for i, cell in enumerate(self.starts):
+                lat, lon = self.grid.cell_to_latlon(*cell)
+                autopilot = self.autopilots[i]
+                sysid = i + 1
+                if autopilot == "px4":
+                    port = free_udp_port()
+                    connect, connection = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
+                    self.detector_ports[i] = ("127.0.0.1", free_udp_port())
+                else:
+                    connect, connection = "udpin:127.0.0.1:0", None
+                mock = MockAutopilot(sysid=sysid, connect=connect, home=(lat, lon, HOME_AMSL), autopilot=autopilot,
+                                     speedup=self.speedup, ready_after=2.0, gcs_failsafe_timeout=self.gcs_failsafe,
+                                     speed=self.speed, seed=self.seed * 1000 + i)
+                det = SimDetector(self.grid, self.targets, i, self.mission_id, self.altitude,
+                                  udp=self.detector_ports.get(i))
+                det.attach(mock)
+                self.detectors.append(det)
+                mock.start()
+                self.mocks.append(mock)
+                if connection is None:
+                    connection = f"udpout:127.0.0.1:{mock.local_port}"
+                self.specs.append(VehicleSpec(f"uav{sysid}", connection, sysid, autopilot))
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def plan(self, policy: str, **kw: Any) -> MissionPlan:
+        assert self.radio is not None, "start() the swarm first"
+        kw.setdefault("time_limit", 300.0)
+        kw.setdefault("step_period", 0.0)
+        kw.setdefault("step_timeout", 10.0)
+        kw.setdefault("end_timeout", 60.0)
+        kw.setdefault("telemetry_hz", 20.0)
+        return MissionPlan(name="demo", mission_id=self.mission_id, grid=self.grid, vehicles=list(self.specs),
+                           policy=policy, altitude=self.altitude, knowledge_peer=self.radio.address,
+                           seed=self.seed, detectors=dict(self.detector_ports), **kw)
+
+    def stop(self) -> None:
+        for m in self.mocks:
+            m.stop()
+        for d in self.detectors:
+            d.close()
+        if self.radio is not None:
+            self.radio.close()
+
+    def __enter__(self) -> "SimSwarm":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,111 @@
+"""Controller overhead per decision step with 3, 12 and 50 mock vehicles at the Chicago Loop.
+
+For each swarm size: start the mock vehicles (in this process, over loopback UDP), fly a search for
+--search seconds with the given policy, and report per decision round the policy time, the whole
+round, and the controller's own part (the round minus the time spent waiting for vehicles to reach
+their cells and for detector reports). The mocks run in a child process (or, with --same-process,
+in threads next to the controller, where they compete with it for the interpreter lock); on a small
+machine they still compete for the CPU, so the numbers are upper bounds.
+
+    python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--out results/]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from swarmctl.geo.grid import GeoGrid  # noqa: E402
+from swarmctl.mission.controller import Controller  # noqa: E402
+from swarmctl.mission.recorder import Recorder  # noqa: E402
+from swarmctl.mission.sim import SimSwarm  # noqa: E402
+
+
+def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:
+    """Child process: the mock vehicles and the radio, until the parent says stop."""
+    grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
+    with SimSwarm(grid, uavs=size, seed=seed, speedup=speedup) as swarm:
+        pipe.send((swarm.specs, swarm.radio.address))
+        pipe.recv()
+
+
+def measure(size: int, policy: str, search: float, speedup: float, seed: int, same_process: bool) -> dict:
+    import multiprocessing as mp
+
+    from swarmctl.mission.controller import MissionPlan
+
+    grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
+    kw = dict(end_action="land", time_limit=search, takeoff_at_once=max(1, size // 4), end_timeout=120.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        if same_process:
+            swarm = SimSwarm(grid, uavs=size, seed=seed, speedup=speedup).start()
+            plan = swarm.plan(policy, **kw)
+            child = parent = None
+        else:
+            parent, child_end = mp.Pipe()
+            child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end))
+            child.start()
+            specs, radio = parent.recv()
+            plan = MissionPlan(name="overhead", mission_id=7, grid=grid, vehicles=specs, policy=policy,
+                               knowledge_peer=radio, seed=seed, step_period=0.0, step_timeout=10.0,
+                               telemetry_hz=20.0, **kw)
+        rec = Recorder(tmp)
+        controller = Controller(plan, rec)
+        started = time.monotonic()
+        try:
+            outcome = asyncio.run(controller.run())
+        finally:
+            rec.close()
+            if same_process:
+                swarm.stop()
+            else:
+                parent.send("stop")
+                child.join(30)
+        took = time.monotonic() - started
+        return dict(vehicles=size, policy=policy, mocks="same process" if same_process else "child process",
+                    outcome=outcome, wall_s=round(took, 1), steps=controller.step, **controller.overhead_ms())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[3, 12, 50])
+    ap.add_argument("--policy", default="frontier")
+    ap.add_argument("--search", type=float, default=20.0, help="seconds of search per size")
+    ap.add_argument("--speedup", type=float, default=20.0)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--same-process", action="store_true",
+                    help="run the mocks in this process (they then compete for the interpreter lock)")
+    ap.add_argument("--out", type=Path, default=None, help="folder for controller_overhead.json/.txt")
+    args = ap.parse_args()
+    rows = [measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process) for n in args.sizes]
+    lines = [f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
+             f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
+             f"{'the same' if args.same_process else 'a child'} process",
+             "",
+             "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
+             "|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['vehicles']} | {r.get('rounds', 0)} | {r.get('decide_mean', float('nan')):.1f} | "
+                     f"{r.get('cpu_mean', float('nan')):.1f} | "
+                     f"{r.get('controller_mean', float('nan')):.1f} | {r.get('controller_p95', float('nan')):.1f} | "
+                     f"{r.get('round_mean', float('nan')):.1f} |")
+    text = "\n".join(lines)
+    print(text)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "controller_overhead.json").write_text(json.dumps(rows, indent=2) + "\n")
+        (args.out / "controller_overhead.txt").write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
