@@ -13,8 +13,7 @@ $(BIN)/swarmctl: pyproject.toml constraints.txt
 	touch $(BIN)/swarmctl
 
 demo: $(BIN)/swarmctl
-	$(BIN)/swarmctl eval --scenario cluster --episodes 200 --seed 0 \
-		--policy random --policy la:4 --policy lawnmower --policy frontier --policy oracle
+	$(BIN)/swarmctl demo --uavs 3 --seed 0 --out runs/demo
 
 test: $(BIN)/swarmctl
 	$(BIN)/python -m pytest -q
