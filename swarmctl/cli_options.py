@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import functools
-
 import click
 
 from swarmctl.errors import InputError
@@ -35,12 +33,7 @@ def world_options(func):
     ]
     for option in reversed(options):
         func = option(func)
-
-    @functools.wraps(func)
-    def wrapper(*args, **kwargs):
-        return func(*args, **kwargs)
-
-    return wrapper
+    return func
 
 
 WORLD_KEYS = ("scenario", "clusters", "map_size", "uavs", "targets", "obstacles", "channel", "loss",

@@ -217,7 +217,7 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             q_net.train()
             evals.append({"episodes": episodes_done, **eval_row})
             next_eval += cfg.eval_every
-            save()
+            metadata = save()
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
         writer.writerow([episodes_done, joint_steps, samples, updates, f"{mean_loss:.5f}", f"{explore_value:.4f}",
                          f"{np.mean(recent_success):.3f}", eval_row.get("success_rate", ""),
@@ -229,6 +229,4 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
     bar.close()
     metrics_file.close()
 
-    q_net.cpu()
-    metadata = save()
-    return metadata
+    return metadata  # the evaluation after the last round saved the final checkpoint

@@ -126,13 +126,7 @@ class MavlinkLink:
         return self
 
     async def close(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            try:
-                await t
-            except asyncio.CancelledError:
-                pass
+        await cancel_tasks(self._tasks)
         self._tasks = []
         self._stop.set()
         if self._thread is not None:
@@ -364,3 +358,14 @@ class MavlinkLink:
         interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
         return await self.command(sysid, MAV.MAV_CMD_SET_MESSAGE_INTERVAL,
                                   (float(message_id), interval_us), **kw)
+
+
+async def cancel_tasks(tasks: list[asyncio.Task]) -> None:
+    """Cancel background tasks and wait until each has ended (errors they ended with are dropped)."""
+    for t in tasks:
+        t.cancel()
+    for t in tasks:
+        try:
+            await t
+        except (asyncio.CancelledError, Exception):
+            pass

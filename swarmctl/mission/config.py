@@ -29,7 +29,7 @@ Relative paths are relative to the mission file.
 from __future__ import annotations
 
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from swarmctl.errors import InputError
@@ -73,7 +73,6 @@ class MissionConfig:
     signing_key: Path | None = None
     knowledge_channel: str | None = None
     digest_every: int = 5
-    extra: dict = field(default_factory=dict)
 
 
 def _fail(path: Path, key: str, problem: str, fix: str) -> InputError:

@@ -20,6 +20,7 @@ from typing import Any
 
 from swarmctl.mavlink.codec import parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout
+from swarmctl.mavlink.network import cancel_tasks
 from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle
 
 log = logging.getLogger(__name__)
@@ -174,13 +175,7 @@ class PX4Vehicle(Vehicle):
                          "position and home")
 
     async def close(self) -> None:
-        for t in self._tasks:
-            t.cancel()
-        for t in self._tasks:
-            try:
-                await t
-            except (asyncio.CancelledError, Exception):
-                pass
+        await cancel_tasks(self._tasks)
         self._tasks = []
         if self._sdk is not None:
             self._sdk.destroy()
