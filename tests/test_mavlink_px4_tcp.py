@@ -90,13 +90,28 @@ class TcpToUdpBridge:
                 elif s is self.udp:
                     data, peer = self.udp.recvfrom(65535)
                     if conn:
-                        conn.sendall(data)
+                        conn = self._relay(conn, data)
                 elif s is conn:
-                    data = conn.recv(65535)
-                    if peer and data:
+                    try:
+                        data = conn.recv(65535)
+                    except OSError:
+                        data = b""
+                    if not data:  # the client went away: wait for the next one
+                        conn.close()
+                        conn = None
+                    elif peer:
                         self.udp.sendto(data, peer)
         if conn:
             conn.close()
+
+    @staticmethod
+    def _relay(conn: socket.socket, data: bytes) -> socket.socket | None:
+        try:
+            conn.sendall(data)
+            return conn
+        except OSError:  # reset by the client closing its end
+            conn.close()
+            return None
 
     def __enter__(self) -> "TcpToUdpBridge":
         self.thread.start()

@@ -112,16 +112,30 @@ def test_stopping_mid_mission_gives_every_vehicle_its_end_action(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_vehicle_that_comes_back_rejoins_the_search(tmp_path):
-    grid = small_grid(16, 16)  # large enough that the others are still searching when it comes back
-    # its own failsafe (1.5 s without the controller's heartbeat) sends it home; then it comes back
-    with SimSwarm(grid, uavs=3, seed=6, speedup=30.0, gcs_failsafe=1.5) as swarm:
-        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
+@pytest.mark.parametrize("back_when", ["landed", "descending"])
+def test_a_vehicle_that_comes_back_rejoins_the_search(tmp_path, back_when):
+    """Its own failsafe (1.5 s without the controller's heartbeat) brings it home; its link comes back
+    once it has landed there (it takes off again) or while it is still coming down (it is taken back
+    in the air)."""
+    grid = small_grid(16, 16)
+    far_corner = [(13, 14), (15, 12), (14, 15)]  # the others search long enough for it to come back
+    with SimSwarm(grid, uavs=3, seed=6, speedup=30.0, gcs_failsafe=1.5, targets=far_corner) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0, step_period=0.2)
         victim = swarm.mocks[2]
+        if back_when == "descending":
+            victim.descent_rate = 0.3  # m/s: slow enough to catch it on the way down
+
+        def back() -> bool:
+            if back_when == "landed":
+                return not victim.armed
+            return victim.armed and victim.mode_name == "RTL" and 2.0 < victim.rel_alt < 15.0
 
         async def outage(controller):
             await wait_for(lambda: controller.step >= 1, 60, "the search to start")
-            victim.blackout(4.5)
+            victim.blackout(600.0)
+            await wait_for(lambda: controller.agents[2].state == "lost", 30, "the link loss to be seen")
+            await wait_for(back, 60, f"the vehicle to be {back_when}")
+            victim.blackout(0.0)
 
         controller, outcome = fly(plan, tmp_path, during=outage)
     assert outcome == "complete"

@@ -84,6 +84,11 @@ class Vehicle(abc.ABC):
     async def rtl(self) -> None:
         """Return to launch (and land there)."""
 
+    @abc.abstractmethod
+    async def resume(self) -> None:
+        """Take an airborne vehicle back from its own failsafe (RTL, LAND) and hold it where it is, so
+        that position targets steer it again."""
+
     # --- state ----------------------------------------------------------------------------------------
     @property
     @abc.abstractmethod

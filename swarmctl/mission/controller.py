@@ -50,6 +50,8 @@ from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 log = logging.getLogger(__name__)
 
+AIRBORNE_M = 1.0  # a vehicle this high above home (or higher) is flying, not landed
+
 # agent states
 CONNECT, PREFLIGHT, TAKEOFF, SEARCH, HOVER, LOST, REJOIN, OVERRIDE, LOW_BATTERY, ENDED, FAILED = (
     "connect", "preflight", "takeoff", "search", "hover", "lost", "rejoin", "override", "low battery", "ended",
@@ -515,8 +517,9 @@ class Controller:
         plan = self.plan
         try:
             pos = a.vehicle.position
-            if a.vehicle.armed and pos is not None and pos.rel_alt > 0.5 * plan.altitude:
-                await a.vehicle.set_mode("GUIDED")
+            if a.vehicle.armed and pos is not None and pos.rel_alt > AIRBORNE_M:
+                # still in the air, perhaps returning or landing on its failsafe: take it back there
+                await a.vehicle.resume()
             else:
                 async with self._takeoff:
                     await a.vehicle.arm_and_takeoff(plan.altitude, plan.takeoff_timeout)
@@ -533,9 +536,11 @@ class Controller:
             self._state(a, SEARCH, rejoined=True)
         except asyncio.CancelledError:
             raise
-        except (MavlinkError, asyncio.TimeoutError) as exc:
-            a.error = str(exc)
-            self._state(a, FAILED, error=str(exc))
+        except Exception as exc:  # noqa: BLE001 - a task that dies silently would leave the vehicle in REJOIN
+            if not isinstance(exc, (MavlinkError, asyncio.TimeoutError)):
+                log.exception("%s: rejoining failed", a.name)
+            a.error = str(exc) or type(exc).__name__
+            self._state(a, FAILED, error=a.error)
         finally:
             a.rejoin_task = None
 

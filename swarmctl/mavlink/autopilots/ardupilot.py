@@ -202,6 +202,11 @@ class ArduPilotVehicle(Vehicle):
         self._target_sent = 0.0
         await self.set_mode("RTL")
 
+    async def resume(self) -> None:
+        self.target = None  # GUIDED with no target holds position
+        self._target_sent = 0.0
+        await self.set_mode("GUIDED")
+
     async def close(self) -> None:
         if self._telemetry_task is not None:
             self._telemetry_task.cancel()

@@ -233,6 +233,11 @@ class PX4Vehicle(Vehicle):
     async def rtl(self) -> None:
         await self._call("return_to_launch", self.action.return_to_launch)
 
+    async def resume(self) -> None:
+        # Hold stops a return or a landing; PX4 then accepts repositions (goto) in flight
+        self.target = None
+        await self.set_mode("HOLD")
+
     # --- state ----------------------------------------------------------------------------------------
 
     @property

@@ -210,7 +210,7 @@ class MockAutopilot:
         self._no_heartbeat_until = time.monotonic() + seconds
 
     def blackout(self, seconds: float) -> None:
-        """Neither send nor receive anything for `seconds` (a radio out of range)."""
+        """Neither send nor receive anything for `seconds` (a radio out of range); 0 ends a blackout now."""
         self._down_until = time.monotonic() + seconds
 
     def reboot(self, downtime: float = 1.0) -> None:
@@ -290,7 +290,7 @@ class MockAutopilot:
             if now - last_step >= self.tick:
                 dt = now - last_step
                 last_step = now
-                if now >= self._down_until:
+                if not self._reboot_pending:  # a blackout cuts the radio, not the flight
                     with self._lock:
                         self._step(dt * self.speedup, now)
                     for hook in list(self.step_hooks):
