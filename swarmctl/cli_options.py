@@ -30,6 +30,9 @@ def world_options(func):
         click.option("--window", type=int, default=20, show_default=True, help="Observation window F."),
         click.option("--guard/--no-guard", default=False, show_default=True,
                      help="Refuse moves into cells other vehicles hold or enter (the controller's guard)."),
+        click.option("--remove-taken/--keep-taken", default=False, show_default=True,
+                     help="Observations: remove the targets other vehicles sit on from the value channel, "
+                          "as LA(n) does (--keep-taken is the paper's observation)."),
     ]
     for option in reversed(options):
         func = option(func)
@@ -37,7 +40,7 @@ def world_options(func):
 
 
 WORLD_KEYS = ("scenario", "clusters", "map_size", "uavs", "targets", "obstacles", "channel", "loss",
-              "cell_size", "fov", "window", "guard")
+              "cell_size", "fov", "window", "guard", "remove_taken")
 
 
 def world_config(kwargs: dict) -> WorldConfig:

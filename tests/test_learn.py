@@ -122,3 +122,11 @@ def test_training_is_reproducible_and_transfer_starts_from_init(tmp_path):
     c = tmp_path / "c.pt"
     meta = train(TINY_WORLD, tiny_config(8), seed=6, out=c, init=a, progress=False)
     assert meta["init"] == str(a) and meta["init_metadata"]["seed"] == 5
+
+
+def test_ddql_options_parse_in_any_order(tiny_model):
+    out, _ = tiny_model
+    paper = make_ddql_policy(f"ddql:{out}:taken=keep:tau=0.2:hover=no")
+    assert (paper.path, paper.tau, paper.remove_taken, paper.hover) == (str(out), 0.2, False, False)
+    ours = make_ddql_policy(f"ddql-greedy:{out}")
+    assert (ours.path, ours.tau, ours.remove_taken, ours.hover) == (str(out), None, True, True)

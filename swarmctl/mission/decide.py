@@ -3,9 +3,10 @@
 The controller has no simulator state: each agent knows only its Knowledge (explored cells, phi and
 obstacles where explored, the last known cells of the others, reported targets). Supported here:
 
-- `ddql:PATH[:tau=T]`, `ddql-greedy:PATH`: the Q-network on each agent's 3 x F x F observation
-  (Knowledge.observation, the simulator's one observation builder), batched over the agents of
-  the process in one forward pass;
+- `ddql:PATH[:tau=T][:taken=remove|keep]`, `ddql-greedy:PATH`: the Q-network on each agent's
+  3 x F x F observation (Knowledge.observation, the simulator's one observation builder, with the
+  targets others hover on removed unless taken=keep), batched over the agents of the process in one
+  forward pass; hovering is the controller's HOVER state;
 - `frontier`: the frontier planner (swarmctl.policy.planners) run by each agent on its own
   knowledge: known targets not held by a hovering vehicle are assigned nearest pair first, the
   others go to the nearest unexplored cell, spread apart by claims;
@@ -126,7 +127,8 @@ class FieldPolicy:
             return [Choice(int(m)) for m in self.rng.integers(0, len(MOVES), size=len(knowledges))]
         if self.kind == "frontier":
             return [Choice(_frontier_move(kn, self.rng, self.window, self.fov)) for kn in knowledges]
-        obs = np.stack([kn.observation(self.window) for kn in knowledges])[None]  # (1, N, 3, F, F)
+        taken = self.net.remove_taken
+        obs = np.stack([kn.observation(self.window, remove_taken=taken) for kn in knowledges])[None]  # (1, N, ...)
         q = self.net.q_values(np.ascontiguousarray(obs, dtype=np.float32))[0]  # (N, 5)
         if self.tau is None:
             moves = q.argmax(axis=1)
@@ -135,7 +137,3 @@ class FieldPolicy:
         return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv])
                 for m, o, qv in zip(moves, obs[0], q)]
 
-
-def observation_digest(kn: Knowledge, window: int = 20) -> str:
-    """sha1 (16 hex digits) of the agent's observation tensor, for the event log."""
-    return hashlib.sha1(np.ascontiguousarray(kn.observation(window)).tobytes()).hexdigest()[:16]

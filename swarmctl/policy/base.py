@@ -33,11 +33,11 @@ def known_target_indices(env: SearchEnv) -> np.ndarray:
     return env.explored[bi, ui, env.targets[:, None, :, 0], env.targets[:, None, :, 1]]
 
 
-def others_count(env: SearchEnv) -> np.ndarray:
-    """(B, U, W, H) int: how many other vehicles each vehicle believes are on each cell."""
-    b, u, w, h = env.batch, env.uavs, env.width, env.height
-    kp = env.known_pos  # (B, V, U, 2)
-    valid = (kp[..., 0] >= 0) & ~np.eye(u, dtype=bool)[None]
-    bi, vi, _ = np.nonzero(valid)
-    flat = ((bi * u + vi) * w + kp[..., 0][valid]) * h + kp[..., 1][valid]
-    return np.bincount(flat, minlength=b * u * w * h).reshape(b, u, w, h)
+def hovering(env: SearchEnv) -> np.ndarray:
+    """(B, U) bool: the vehicle is on a target and no lower-numbered vehicle is on the same cell; such a
+    vehicle stays (LA(n) in the paper; the controller's HOVER state)."""
+    bi = np.arange(env.batch)[:, None]
+    on_target = env.target_mask[bi, env.pos[..., 0], env.pos[..., 1]]
+    same = (env.pos[:, :, None, :] == env.pos[:, None, :, :]).all(-1)
+    lower_there = (same & np.tri(env.uavs, k=-1, dtype=bool)[None]).any(-1)
+    return on_target & ~lower_there

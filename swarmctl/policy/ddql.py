@@ -1,17 +1,29 @@
 """The learned policy: the shared Q-network acting for every vehicle, batched.
 
 `ddql:PATH` samples from softmax(Q / tau) with tau = 0.1 (the paper's "DDQL Soft"; it keeps stuck
-vehicles from looping), `ddql:PATH:tau=0.05` changes tau, `ddql-greedy:PATH` takes argmax Q.
+vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as `:key=value`:
+
+- `tau=T`: the softmax temperature (default 0.1);
+- `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
+  LA(n) removes them from its value map (default remove; keep is the paper's observation);
+- `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there, as LA(n)
+  and the controller's HOVER state do (default yes; no lets the network decide, as in the paper).
+
+`ddql:PATH:taken=keep:hover=no` is the paper's DDQL Soft.
 """
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import torch
 
 from swarmctl.errors import InputError
+from swarmctl.policy.base import hovering
 from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.world.env import SearchEnv
+from swarmctl.world.moves import STAY
 
 
 def softmax_sample(q: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
@@ -26,9 +38,11 @@ def softmax_sample(q: np.ndarray, tau: float, rng: np.random.Generator) -> np.nd
 class DDQLPolicy:
     needs_observations = True
 
-    def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None):
+    def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
+                 hover: bool = True):
         self.path = path
         self.tau = tau
+        self.remove_taken, self.hover = remove_taken, hover
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
         self.rng = np.random.default_rng(0)
@@ -47,29 +61,42 @@ class DDQLPolicy:
         return q.numpy().reshape(b, u, -1)
 
     def act(self, env: SearchEnv) -> np.ndarray:
-        obs = env.last_observations if env.last_observations is not None else env.observe()
+        obs = env.last_observations
+        if obs is None or env.cfg.remove_taken != self.remove_taken:
+            obs = env.observe(self.remove_taken)
         q = self.q_values(obs)
         b, u, a = q.shape
         if self.tau is None:
-            return q.argmax(axis=-1)
-        return softmax_sample(q.reshape(b * u, a), self.tau, self.rng).reshape(b, u)
+            actions = q.argmax(axis=-1)
+        else:
+            actions = softmax_sample(q.reshape(b * u, a), self.tau, self.rng).reshape(b, u)
+        return np.where(hovering(env), STAY, actions) if self.hover else actions
+
+
+_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no")}
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
-    """Parse `ddql:PATH[:tau=T]` or `ddql-greedy:PATH`."""
+    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no]` or `ddql-greedy:PATH[...]`."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
+    path, options = rest, {}
+    while (m := re.search(r":(tau|taken|hover)=([^:]*)$", path)) is not None:
+        options[m.group(1)] = m.group(2)
+        path = path[: m.start()]
     tau: float | None = 0.1
-    path = rest
-    if ":tau=" in rest:
-        path, _, value = rest.rpartition(":tau=")
+    if "tau" in options:
         try:
-            tau = float(value)
+            tau = float(options["tau"])
         except ValueError:
             tau = -1.0
         if not tau > 0:
             raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
+    for key, allowed in _CHOICES.items():
+        if options.get(key, allowed[0]) not in allowed:
+            raise InputError(f"--policy {spec!r}: {key} must be {' or '.join(allowed)}, as in ddql:PATH:{key}={allowed[1]}")
     if kind == "ddql-greedy":
         tau = None
-    return DDQLPolicy(path, tau=tau, name=spec)
+    return DDQLPolicy(path, tau=tau, name=spec, remove_taken=options.get("taken", "remove") == "remove",
+                      hover=options.get("hover", "yes") == "yes")

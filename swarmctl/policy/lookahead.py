@@ -17,13 +17,11 @@ import itertools
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.ndimage import distance_transform_edt
 
-from swarmctl.policy.base import others_count
+from swarmctl.policy.base import hovering
 from swarmctl.world.env import SearchEnv
 from swarmctl.world.moves import MOVES, STAY
-
-_FAR = 1.0e4  # sampling along batch axes, so distance transforms never cross episodes
+from swarmctl.world.taken import remove_taken_targets
 
 
 class LookAhead:
@@ -41,18 +39,11 @@ class LookAhead:
         self.rng = rng
 
     def value_maps(self, env: SearchEnv) -> np.ndarray:
-        """phi_hat / xi per vehicle with hovered targets eliminated; -inf on known obstacles."""
+        """phi_hat / xi per vehicle with taken targets removed; -inf on known obstacles."""
         value = env.known_value()
-        count = others_count(env)
-        hovered = (count > 0) & env.explored & (value >= 1.0)  # targets others sit on
-        if hovered.any():
-            sigma2, cutoff = env.cfg.sigma2, env.cfg.phi_cutoff
-            remaining = env.explored & (value >= 1.0) & ~hovered
-            bump_gone = _bump(_distance_to(hovered), sigma2, cutoff)
-            bump_left = _bump(_distance_to(remaining), sigma2, cutoff) if remaining.any() else 0.0
-            explained = env.explored & (bump_gone > 0) & (value <= bump_gone + 1e-6)
-            value = np.where(explained, bump_left, value).astype(np.float32)
-        value = value / (1.0 + count)
+        taken = env.taken_targets()
+        value = remove_taken_targets(value, env.explored, taken, env.cfg.sigma2, env.cfg.phi_cutoff)
+        value = value / (1.0 + env.others_count())
         value[env.known_obstacles()] = -np.inf
         return value
 
@@ -70,24 +61,4 @@ class LookAhead:
         ties = scores >= best - 1e-6
         choice = np.argmax(ties * self.rng.random(scores.shape), axis=1)
         actions = self.first_move[choice].reshape(b, u)
-        return np.where(self._hovering(env), STAY, actions)
-
-    @staticmethod
-    def _hovering(env: SearchEnv) -> np.ndarray:
-        """(B, U): the vehicle is on a target and no lower-numbered vehicle is on the same cell."""
-        bi = np.arange(env.batch)[:, None]
-        on_target = env.target_mask[bi, env.pos[..., 0], env.pos[..., 1]]
-        same = (env.pos[:, :, None, :] == env.pos[:, None, :, :]).all(-1)
-        lower_there = (same & np.tri(env.uavs, k=-1, dtype=bool)[None]).any(-1)
-        return on_target & ~lower_there
-
-
-def _distance_to(mask: np.ndarray) -> np.ndarray:
-    """Euclidean distance from each cell to the nearest True cell of its own (B, U) map."""
-    return distance_transform_edt(~mask, sampling=[_FAR, _FAR, 1.0, 1.0])
-
-
-def _bump(dist: np.ndarray, sigma2: float, cutoff: float) -> np.ndarray:
-    phi = np.exp(-(dist**2) / (2.0 * sigma2))
-    phi[phi < cutoff] = 0.0
-    return phi
+        return np.where(hovering(env), STAY, actions)

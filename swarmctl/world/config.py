@@ -38,6 +38,7 @@ class WorldConfig:
     loss: float = 0.0  # packet-loss probability for channel "fixed"
     cell_size: float = 10.0  # metres per cell, for the channel model
     guard: bool = False  # refuse moves into a cell another vehicle holds or enters (controller's guard)
+    remove_taken: bool = False  # observations: targets others sit on leave the value channel (world.taken)
 
     def __post_init__(self) -> None:
         self.validate()

@@ -28,6 +28,7 @@ from swarmctl.world.config import WorldConfig
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.observe import build_observations
 from swarmctl.world.scenario import Scenario, fov_offsets, generate_scenario, value_map
+from swarmctl.world.taken import remove_taken_targets
 
 
 @dataclass
@@ -171,15 +172,38 @@ class SearchEnv:
         """omega_hat per vehicle (B, U, W, H): obstacles the vehicle has explored."""
         return self.explored & self.obstacles[:, None]
 
-    def value_channel(self) -> np.ndarray:
-        """phi_hat - rho * omega_hat per vehicle (B, U, W, H) float32."""
+    def others_count(self) -> np.ndarray:
+        """(B, U, W, H) int: how many other vehicles each vehicle believes are on each cell."""
+        b, u, w, h = self.batch, self.uavs, self.width, self.height
+        kp = self.known_pos  # (B, V, U, 2)
+        valid = (kp[..., 0] >= 0) & ~np.eye(u, dtype=bool)[None]
+        bi, vi, _ = np.nonzero(valid)
+        flat = ((bi * u + vi) * w + kp[..., 0][valid]) * h + kp[..., 1][valid]
+        return np.bincount(flat, minlength=b * u * w * h).reshape(b, u, w, h)
+
+    def taken_targets(self) -> np.ndarray:
+        """(B, U, W, H) bool: explored target cells on which the vehicle believes another vehicle is."""
+        return (self.others_count() > 0) & self.explored & self.target_mask[:, None]
+
+    def value_channel(self, remove_taken: bool | None = None) -> np.ndarray:
+        """phi_hat - rho * omega_hat per vehicle (B, U, W, H) float32; with remove_taken (default:
+        the world's setting) the targets others sit on are removed from phi_hat (world.taken)."""
         out = np.ones(self.explored.shape, dtype=np.float32)
-        np.copyto(out, self._seen_value[:, None], where=self.explored)
+        if remove_taken is None:
+            remove_taken = self.cfg.remove_taken
+        taken = self.taken_targets() if remove_taken else None
+        if taken is not None and taken.any():
+            phi = remove_taken_targets(self.known_value(), self.explored, taken, self.cfg.sigma2, self.cfg.phi_cutoff)
+            seen = phi - np.float32(self.cfg.rho) * self.obstacles[:, None]
+            np.copyto(out, seen, where=self.explored)
+        else:
+            np.copyto(out, self._seen_value[:, None], where=self.explored)
         return out
 
-    def observe(self) -> np.ndarray:
+    def observe(self, remove_taken: bool | None = None) -> np.ndarray:
         """(B, U, 3, F, F) float32 observations for every vehicle."""
-        return build_observations(self.value_channel(), self.pos, self.known_pos, self.cfg.window, self.cfg.rho)
+        return build_observations(self.value_channel(remove_taken), self.pos, self.known_pos, self.cfg.window,
+                                  self.cfg.rho)
 
 
 def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:

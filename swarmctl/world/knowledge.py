@@ -26,6 +26,7 @@ import numpy as np
 
 from swarmctl.world.observe import build_observations
 from swarmctl.world.scenario import fov_offsets
+from swarmctl.world.taken import remove_taken_targets
 
 PHI_LEVELS = 255
 
@@ -179,22 +180,38 @@ class Knowledge:
         """Known positions of the other vehicles."""
         return {v: p for v, p in self.positions.items() if v != self.vehicle_id}
 
-    def value_channel(self, rho: float = 0.2) -> np.ndarray:
-        """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (as SearchEnv.value_channel)."""
-        seen = (self.phi - np.float32(rho) * self.obstacle).astype(np.float32)
+    def taken_targets(self) -> np.ndarray:
+        """(W, H) bool: explored target cells (phi 1) on which another vehicle is known to be."""
+        taken = np.zeros_like(self.explored)
+        for p in self.peers.values():
+            if p.cell is not None and self.explored[p.cell] and self.phi_q[p.cell] == PHI_LEVELS:
+                taken[p.cell] = True
+        return taken
+
+    def value_channel(self, rho: float = 0.2, remove_taken: bool = False, sigma2: float = 1.0,
+                      cutoff: float = 0.01) -> np.ndarray:
+        """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (as SearchEnv.value_channel);
+        with remove_taken the targets others sit on are removed from phi_hat (world.taken)."""
+        phi = self.phi
+        if remove_taken:
+            phi_hat = np.where(self.explored, phi, np.float32(1.0))
+            phi = remove_taken_targets(phi_hat, self.explored, self.taken_targets(), sigma2, cutoff,
+                                       tolerance=0.5 / PHI_LEVELS + 1e-6)
+        seen = (phi - np.float32(rho) * self.obstacle).astype(np.float32)
         return np.where(self.explored, seen, np.float32(1.0)).astype(np.float32)
 
-    def observation(self, window: int = 20, rho: float = 0.2) -> np.ndarray:
+    def observation(self, window: int = 20, rho: float = 0.2, remove_taken: bool = False) -> np.ndarray:
         """The (3, F, F) observation of this vehicle, built by world.observe.build_observations.
 
-        Peers whose position is unknown are left out; the own position must be known."""
+        Peers whose position is unknown are left out; the own position must be known. remove_taken:
+        see value_channel."""
         own = self.own_position
         if own is None or own.cell is None:
             raise ValueError(f"vehicle {self.vehicle_id} does not know its own cell yet: call set_position first")
         others = [p.cell for v, p in sorted(self.peers.items()) if p.cell is not None]
         cells = np.array([own.cell, *others], dtype=np.int64).reshape(1, -1, 2)
         u = cells.shape[1]
-        value = np.broadcast_to(self.value_channel(rho), (1, u, self.width, self.height))
+        value = np.broadcast_to(self.value_channel(rho, remove_taken), (1, u, self.width, self.height))
         known = np.broadcast_to(cells[:, None, :, :], (1, u, u, 2)).copy()
         return build_observations(np.ascontiguousarray(value), cells, known, window, rho)[0, 0]
 

@@ -1,0 +1,40 @@
+"""Taken targets: a target another vehicle sits on is no longer worth going to.
+
+LA(n) in the paper removes a target a vehicle hovers on from the others' value maps. We do the same
+for every policy that wants it (LA(n), and the Q-network's value channel when the world is built
+with `remove_taken`): the explored cells whose value the taken target explains (its bump) read the
+value of the nearest target that is still free instead, 0 when there is none.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+
+_FAR = 1.0e4  # sampling along batch axes, so distance transforms never cross maps
+
+
+def value_bump(dist: np.ndarray, sigma2: float, cutoff: float) -> np.ndarray:
+    """phi at distance `dist` from a target: exp(-d^2 / (2 sigma2)), 0 below the cut-off."""
+    phi = np.exp(-(dist**2) / (2.0 * sigma2))
+    phi[phi < cutoff] = 0.0
+    return phi
+
+
+def remove_taken_targets(phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float,
+                         cutoff: float, tolerance: float = 1e-6) -> np.ndarray:
+    """phi_hat (..., W, H) with the targets in `taken` removed.
+
+    phi_hat: known phi (1 on unexplored cells); explored: bool, same shape; taken: bool, the target
+    cells (explored, phi 1) someone else holds. Leading axes are independent maps. A cell belongs to
+    a taken target's bump when its phi is at most that bump's value + `tolerance` (raise it for
+    quantised phi)."""
+    if not taken.any():
+        return phi_hat
+    sampling = [_FAR] * (phi_hat.ndim - 2) + [1.0, 1.0]
+    remaining = explored & (phi_hat >= 1.0) & ~taken
+    gone = value_bump(distance_transform_edt(~taken, sampling=sampling), sigma2, cutoff)
+    left = (value_bump(distance_transform_edt(~remaining, sampling=sampling), sigma2, cutoff)
+            if remaining.any() else np.zeros_like(gone))
+    explained = explored & (gone > 0) & (phi_hat <= gone + tolerance)
+    return np.where(explained, left, phi_hat).astype(phi_hat.dtype)
