@@ -32,11 +32,12 @@ def small_mission(tmp_path: Path, **mission: str) -> Path:
 
 
 @pytest.mark.slow
-def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, capsys):
+@pytest.mark.parametrize("policy", ["frontier", "la:4"])
+def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, capsys, policy):
     mission = small_mission(tmp_path)
     out = tmp_path / "run"
     code = main(["demo", "--mission", str(mission), "--uavs", "3", "--seed", "4", "--speedup", "30",
-                 "--out", str(out), "--no-live", "--end-action", "hover"])
+                 "--out", str(out), "--no-live", "--end-action", "hover", "--policy", policy])
     assert code == 0, capsys.readouterr().err
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "complete" and len(summary["targets_found"]) == 3
@@ -85,7 +86,7 @@ def test_sigterm_mid_mission_gives_every_vehicle_its_end_action_and_exits_130(tm
 
 BAD = [
     (["demo", "--uavs", "0"], "--uavs 0"),
-    (["demo", "--policy", "la:4"], "la:4"),
+    (["demo", "--policy", "lawnmower"], "lawnmower"),
     (["demo", "--policy", "ddql:/nonexistent/model.pt"], "model.pt"),
     (["demo", "--speedup", "-1"], "--speedup"),
     (["fly", "/nonexistent/mission.toml"], "no such mission file"),
@@ -100,8 +101,8 @@ def test_bad_input_is_one_line_and_exit_2(argv, needle, capsys):
 
 
 def test_bad_mission_files_exit_2(tmp_path, capsys):
-    assert main(["fly", str(small_mission(tmp_path, policy='"la:4"')), "--yes"]) == 2
-    assert "la:4" in capsys.readouterr().err
+    assert main(["fly", str(small_mission(tmp_path, policy='"lawnmower"')), "--yes"]) == 2
+    assert "lawnmower" in capsys.readouterr().err
     bad = small_mission(tmp_path)
     bad.write_text(bad.read_text() + '[knowledge]\nchannel = "udpin:0.0.0.0:14600"\n')
     assert main(["fly", str(bad), "--yes"]) == 2

@@ -90,3 +90,25 @@ def test_the_controllers_knowledge_removes_it_the_same_way():
 def test_bad_ddql_options_are_named(spec, needle):
     with pytest.raises(InputError, match=needle):
         make_ddql_policy(spec)
+
+
+def test_la_in_the_field_sees_what_la_in_the_simulator_sees():
+    from swarmctl.mission.decide import _KnowledgeWorld
+    from swarmctl.policy.lookahead import LookAhead
+
+    env = _two_on_targets(remove_taken=False)
+    env.step(np.array([[0, 1]]))  # vehicle 1 north to (3, 3), next to the taken target
+    k = Knowledge(10, 10, vehicle_id=1)
+    x, y = np.nonzero(env.explored[0, 1])
+    k.sense(np.stack([x, y], 1), env.phi[0, x, y], env.obstacles[0, x, y])
+    k.merge_position(1, Position(2, (3, 3)))
+    k.merge_position(0, Position(2, (2, 2), on_target=True))
+    la = LookAhead(4)
+    sim = la.value_maps(env)[0, 1]
+    field = la.value_maps(_KnowledgeWorld(k))[0, 0]
+    assert sim[2, 2] == 0.0  # the target vehicle 0 sits on is gone for vehicle 1
+    assert field[2, 2] == -np.inf  # and in the field, where the guard keeps others out, its cell is blocked
+    field[2, 2] = sim[2, 2]
+    assert np.array_equal(np.isinf(sim), np.isinf(field))
+    finite = np.isfinite(sim)
+    assert np.abs(sim[finite] - field[finite]).max() <= 0.5 / 255 + 1e-6

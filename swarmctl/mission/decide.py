@@ -10,11 +10,12 @@ obstacles where explored, the last known cells of the others, reported targets).
 - `frontier`: the frontier planner (swarmctl.policy.planners) run by each agent on its own
   knowledge: known targets not held by a hovering vehicle are assigned nearest pair first, the
   others go to the nearest unexplored cell, spread apart by claims;
+- `la:N`: the look-ahead planner run by each agent on its own knowledge (the vehicles it knows of
+  enter as counts per cell; targets they sit on are removed from its value map, as in the simulator);
 - `random`: uniform over the five moves.
 
-`la:N` and `lawnmower` read simulator-only state (the value of unexplored cells behind the true
-target mask, fixed sweep lanes from the start cells) and are refused for missions; use them in
-`swarmctl eval`.
+`lawnmower` sweeps fixed lanes planned from every vehicle's start for the whole episode; it has no
+per-agent form and is refused for missions (use it in `swarmctl eval`). `oracle` reads the truth.
 """
 
 from __future__ import annotations
@@ -28,10 +29,11 @@ import numpy as np
 from swarmctl.errors import InputError
 from swarmctl.policy import planners
 from swarmctl.policy.ddql import softmax_sample
-from swarmctl.world.knowledge import Knowledge
+from swarmctl.policy.registry import make_policy
+from swarmctl.world.knowledge import PHI_TOLERANCE, Knowledge
 from swarmctl.world.moves import MOVES
 
-FIELD_POLICIES = "ddql:PATH[:tau=T], ddql-greedy:PATH, frontier, random"
+FIELD_POLICIES = "ddql:PATH[:tau=T], ddql-greedy:PATH, la:N, frontier, random"
 
 
 @dataclass
@@ -95,6 +97,48 @@ def _frontier_move(kn: Knowledge, rng: np.random.Generator, window: int, fov: fl
     return int(planners._navigate(alone, np.asarray(goal, dtype=np.int64).reshape(1, 1, 2), rng)[0, 0])
 
 
+class _KnowledgeWorld:
+    """One agent's Knowledge in the form LA(n) reads a SearchEnv: a batch of one with one vehicle, the
+    others it knows of entering as counts per cell. phi is the quantised phi the codec carries.
+
+    A vehicle hovering on a target will not move again and the guard refuses every move into its
+    cell, so here that cell is an obstacle to plan round (in the simulator, where nothing refuses
+    the move, LA(n) would pass through it)."""
+
+    batch = uavs = 1
+    phi_tolerance = PHI_TOLERANCE
+
+    def __init__(self, kn: Knowledge):
+        self.kn = kn
+        self.width, self.height = kn.width, kn.height
+        self.cfg = SimpleNamespace(sigma2=1.0, phi_cutoff=0.01)  # the value map's (WorldConfig defaults)
+        self.explored = kn.explored[None, None]
+        self.pos = np.array(kn.own_position.cell, dtype=np.int64).reshape(1, 1, 2)
+        self.target_mask = np.zeros((1, kn.width, kn.height), dtype=bool)
+        for cell in kn.targets:
+            self.target_mask[(0, *cell)] = True
+
+    def known_value(self) -> np.ndarray:
+        return np.where(self.explored, self.kn.phi, np.float32(1.0))
+
+    def known_obstacles(self) -> np.ndarray:
+        blocked = self.kn.obstacle.copy()
+        for p in self.kn.peers.values():
+            if p.on_target and p.cell is not None:
+                blocked[p.cell] = True
+        return self.explored & blocked
+
+    def taken_targets(self) -> np.ndarray:
+        return self.kn.taken_targets()[None, None]
+
+    def others_count(self) -> np.ndarray:
+        count = np.zeros((1, 1, self.width, self.height), dtype=np.int64)
+        for p in self.kn.peers.values():
+            if p.cell is not None:
+                count[(0, 0, *p.cell)] += 1
+        return count
+
+
 class FieldPolicy:
     """One policy for every agent of a process; `choose` decides for all of them at once."""
 
@@ -114,11 +158,15 @@ class FieldPolicy:
                                  f"observations, the controller builds {window} x {window}; use a model trained "
                                  f"with --window {window}")
             self.net, self.tau, self.kind = p, p.tau, "ddql"
+        elif kind == "la":
+            self.lookahead = make_policy(self.spec)
+            self.lookahead.reset(None, self.rng)
+            self.kind = "la"
         elif self.spec in ("frontier", "random"):
             self.kind = self.spec
         else:
             raise InputError(f"policy {self.spec!r} cannot fly a mission: use one of {FIELD_POLICIES} "
-                             "(la:N and lawnmower need the simulator's state)")
+                             "(lawnmower plans every vehicle's lanes at once; oracle reads the truth)")
 
     def choose(self, knowledges: list[Knowledge]) -> list[Choice]:
         if not knowledges:
@@ -127,6 +175,8 @@ class FieldPolicy:
             return [Choice(int(m)) for m in self.rng.integers(0, len(MOVES), size=len(knowledges))]
         if self.kind == "frontier":
             return [Choice(_frontier_move(kn, self.rng, self.window, self.fov)) for kn in knowledges]
+        if self.kind == "la":
+            return [Choice(int(self.lookahead.act(_KnowledgeWorld(kn))[0, 0])) for kn in knowledges]
         taken = self.net.remove_taken
         obs = np.stack([kn.observation(self.window, remove_taken=taken) for kn in knowledges])[None]  # (1, N, ...)
         q = self.net.q_values(np.ascontiguousarray(obs, dtype=np.float32))[0]  # (N, 5)

@@ -106,7 +106,8 @@ class LiveView:
     """A table per vehicle (state, cell, battery, link, targets) redrawn each step on a terminal, and a
     progress line; `live=False` keeps only the progress lines, `quiet=True` prints nothing."""
 
-    def __init__(self, stream: TextIO = sys.stderr, live: bool = True, quiet: bool = False, every: float = 2.0):
+    def __init__(self, stream: TextIO | None = None, live: bool = True, quiet: bool = False, every: float = 2.0):
+        stream = stream if stream is not None else sys.stderr  # looked up now: sys.stderr may be replaced
         self.stream, self.quiet, self.every = stream, quiet, every
         self.live = live and not quiet and stream.isatty()
         self._lines = 0

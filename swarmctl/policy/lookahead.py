@@ -42,7 +42,7 @@ class LookAhead:
         """phi_hat / xi per vehicle with taken targets removed; -inf on known obstacles."""
         value = env.known_value()
         taken = env.taken_targets()
-        value = remove_taken_targets(value, env.explored, taken, env.cfg.sigma2, env.cfg.phi_cutoff)
+        value = remove_taken_targets(value, env.explored, taken, env.cfg.sigma2, env.cfg.phi_cutoff, env.phi_tolerance)
         value = value / (1.0 + env.others_count())
         value[env.known_obstacles()] = -np.inf
         return value

@@ -44,6 +44,8 @@ class StepInfo:
 class SearchEnv:
     """B parallel episodes of the paper's search world."""
 
+    phi_tolerance = 1e-6  # phi is exact here (the controller's Knowledge carries it quantised)
+
     def __init__(self, cfg: WorldConfig, batch: int = 1, stop_at_success: bool = True, observations: bool = True):
         if batch < 1:
             raise ScenarioError(f"batch {batch} must be >= 1")

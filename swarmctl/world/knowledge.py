@@ -29,6 +29,7 @@ from swarmctl.world.scenario import fov_offsets
 from swarmctl.world.taken import remove_taken_targets
 
 PHI_LEVELS = 255
+PHI_TOLERANCE = 0.5 / PHI_LEVELS + 1e-6  # how far a quantised phi may be from the exact one
 
 
 def quantise_phi(phi: np.ndarray | float) -> np.ndarray:
@@ -195,8 +196,7 @@ class Knowledge:
         phi = self.phi
         if remove_taken:
             phi_hat = np.where(self.explored, phi, np.float32(1.0))
-            phi = remove_taken_targets(phi_hat, self.explored, self.taken_targets(), sigma2, cutoff,
-                                       tolerance=0.5 / PHI_LEVELS + 1e-6)
+            phi = remove_taken_targets(phi_hat, self.explored, self.taken_targets(), sigma2, cutoff, PHI_TOLERANCE)
         seen = (phi - np.float32(rho) * self.obstacle).astype(np.float32)
         return np.where(self.explored, seen, np.float32(1.0)).astype(np.float32)
 
