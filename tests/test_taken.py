@@ -112,3 +112,33 @@ def test_la_in_the_field_sees_what_la_in_the_simulator_sees():
     assert np.array_equal(np.isinf(sim), np.isinf(field))
     finite = np.isfinite(sim)
     assert np.abs(sim[finite] - field[finite]).max() <= 0.5 / 255 + 1e-6
+
+
+def test_allowed_moves_keep_a_vehicle_on_the_map_out_of_known_obstacles_and_still_only_on_a_target():
+    from swarmctl.policy.ddql import allowed_moves
+
+    pos = np.array([[[0, 0], [5, 5], [5, 5], [2, 2]]])  # (B=1, U=4, 2)
+    blocked = np.zeros((1, 4, 8, 8), dtype=bool)
+    blocked[0, 0, 1, 0] = True  # vehicle 0 knows an obstacle east of it
+    blocked[0, 3, [1, 3, 2, 2], [2, 2, 1, 3]] = True  # vehicle 3 is boxed in
+    hover_here = np.array([[False, False, True, False]])
+    allowed = allowed_moves(pos, hover_here, blocked)
+    # moves: stay, north (0, +1), east (+1, 0), south (0, -1), west (-1, 0)
+    assert allowed[0, 0].tolist() == [False, True, False, False, False]
+    assert allowed[0, 1].tolist() == [False, True, True, True, True]
+    assert allowed[0, 2].tolist() == [True, False, False, False, False]
+    assert allowed[0, 3].tolist() == [True, False, False, False, False]  # no move at all: it may stay
+    assert allowed_moves(pos, None, None).all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from([None, 0.1, 1.0]))
+def test_choose_never_takes_a_move_that_is_not_allowed(seed, tau):
+    from swarmctl.policy.ddql import choose
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(4, 3, 5)).astype(np.float32) * 10
+    allowed = rng.random((4, 3, 5)) < 0.5
+    allowed[..., 0] |= ~allowed.any(-1)
+    moves = choose(q, allowed, tau, rng)
+    assert allowed[np.arange(4)[:, None], np.arange(3)[None], moves].all()

@@ -28,7 +28,7 @@ import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.policy import planners
-from swarmctl.policy.ddql import softmax_sample
+from swarmctl.policy.ddql import allowed_moves, choose
 from swarmctl.policy.registry import make_policy
 from swarmctl.world.knowledge import PHI_TOLERANCE, Knowledge
 from swarmctl.world.moves import MOVES
@@ -179,11 +179,14 @@ class FieldPolicy:
             return [Choice(int(self.lookahead.act(_KnowledgeWorld(kn))[0, 0])) for kn in knowledges]
         taken = self.net.remove_taken
         obs = np.stack([kn.observation(self.window, remove_taken=taken) for kn in knowledges])[None]  # (1, N, ...)
-        q = self.net.q_values(np.ascontiguousarray(obs, dtype=np.float32))[0]  # (N, 5)
-        if self.tau is None:
-            moves = q.argmax(axis=1)
-        else:
-            moves = softmax_sample(q, self.tau, self.rng)
+        q = self.net.q_values(np.ascontiguousarray(obs, dtype=np.float32))  # (1, N, 5)
+        cells = np.array([kn.own_position.cell for kn in knowledges], dtype=np.int64)[None]
+        # a searching agent is never on a free known target (it would hover): with hover it always moves
+        hover_here = np.zeros(cells.shape[:2], dtype=bool) if self.net.hover else None
+        blocked = np.stack([_KnowledgeWorld(kn).known_obstacles()[0, 0] for kn in knowledges])[None] \
+            if self.net.mask else None
+        moves = choose(q, allowed_moves(cells, hover_here, blocked), self.tau, self.rng)[0]
+        q = q[0]
         return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv])
                 for m, o, qv in zip(moves, obs[0], q)]
 

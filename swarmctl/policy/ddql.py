@@ -6,10 +6,14 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
 - `tau=T`: the softmax temperature (default 0.1);
 - `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
   LA(n) removes them from its value map (default remove; keep is the paper's observation);
-- `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there, as LA(n)
-  and the controller's HOVER state do (default yes; no lets the network decide, as in the paper).
+- `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there and every
+  other vehicle moves: "stay" is only ever the hover, as in the controller's HOVER state. This is
+  our answer to the paper's stragglers, vehicles that stop far from any target once the others have
+  found theirs (default yes; no lets the network decide, as in the paper);
+- `mask=yes|no`: moves off the map or into an obstacle the vehicle knows of are never chosen, as
+  LA(n) scores them -inf (default yes; no as in the paper).
 
-`ddql:PATH:taken=keep:hover=no` is the paper's DDQL Soft.
+`ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from swarmctl.errors import InputError
 from swarmctl.policy.base import hovering
 from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.world.env import SearchEnv
-from swarmctl.world.moves import STAY
+from swarmctl.world.moves import MOVES, STAY
 
 
 def softmax_sample(q: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
@@ -35,14 +39,46 @@ def softmax_sample(q: np.ndarray, tau: float, rng: np.random.Generator) -> np.nd
     return np.minimum((p.cumsum(axis=1) < u).sum(axis=1), q.shape[1] - 1)
 
 
+def allowed_moves(pos: np.ndarray, hover_here: np.ndarray | None, blocked: np.ndarray | None) -> np.ndarray:
+    """(B, U, 5) bool: the moves a vehicle may take.
+
+    pos: (B, U, 2) cells. hover_here: (B, U) bool or None; where given, a vehicle that should hover
+    may only stay and any other may not. blocked: (B, U, W, H) bool, the obstacles each vehicle knows
+    of, or None; where given, moves into them or off the map are refused. Stay is always left to a
+    vehicle with no move at all."""
+    b, u = pos.shape[:2]
+    allowed = np.ones((b, u, len(MOVES)), dtype=bool)
+    if blocked is not None:
+        w, h = blocked.shape[-2:]
+        dest = pos[:, :, None, :] + MOVES[None, None]
+        inside = (dest[..., 0] >= 0) & (dest[..., 0] < w) & (dest[..., 1] >= 0) & (dest[..., 1] < h)
+        bi, ui = np.arange(b)[:, None, None], np.arange(u)[None, :, None]
+        allowed &= inside & ~blocked[bi, ui, np.clip(dest[..., 0], 0, w - 1), np.clip(dest[..., 1], 0, h - 1)]
+    if hover_here is not None:
+        allowed[..., STAY] = hover_here
+        allowed[hover_here] = np.arange(len(MOVES)) == STAY
+    allowed[~allowed.any(-1), STAY] = True
+    return allowed
+
+
+def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, rng: np.random.Generator) -> np.ndarray:
+    """Moves (B, U) from Q-values (B, U, 5): softmax(Q / tau) sampling (argmax when tau is None) over
+    the allowed moves."""
+    b, u, a = q.shape
+    q = np.where(allowed, q, -np.inf)
+    if tau is None:
+        return q.argmax(axis=-1)
+    return softmax_sample(q.reshape(b * u, a), tau, rng).reshape(b, u)
+
+
 class DDQLPolicy:
     needs_observations = True
 
     def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
-                 hover: bool = True):
+                 hover: bool = True, mask: bool = True):
         self.path = path
         self.tau = tau
-        self.remove_taken, self.hover = remove_taken, hover
+        self.remove_taken, self.hover, self.mask = remove_taken, hover, mask
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
         self.rng = np.random.default_rng(0)
@@ -64,25 +100,21 @@ class DDQLPolicy:
         obs = env.last_observations
         if obs is None or env.cfg.remove_taken != self.remove_taken:
             obs = env.observe(self.remove_taken)
-        q = self.q_values(obs)
-        b, u, a = q.shape
-        if self.tau is None:
-            actions = q.argmax(axis=-1)
-        else:
-            actions = softmax_sample(q.reshape(b * u, a), self.tau, self.rng).reshape(b, u)
-        return np.where(hovering(env), STAY, actions) if self.hover else actions
+        allowed = allowed_moves(env.pos, hovering(env) if self.hover else None,
+                                env.known_obstacles() if self.mask else None)
+        return choose(self.q_values(obs), allowed, self.tau, self.rng)
 
 
-_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no")}
+_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no"), "mask": ("yes", "no")}
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
-    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no]` or `ddql-greedy:PATH[...]`."""
+    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]` or `ddql-greedy:PATH[...]`."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
     path, options = rest, {}
-    while (m := re.search(r":(tau|taken|hover)=([^:]*)$", path)) is not None:
+    while (m := re.search(r":(tau|taken|hover|mask)=([^:]*)$", path)) is not None:
         options[m.group(1)] = m.group(2)
         path = path[: m.start()]
     tau: float | None = 0.1
@@ -99,4 +131,4 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
     if kind == "ddql-greedy":
         tau = None
     return DDQLPolicy(path, tau=tau, name=spec, remove_taken=options.get("taken", "remove") == "remove",
-                      hover=options.get("hover", "yes") == "yes")
+                      hover=options.get("hover", "yes") == "yes", mask=options.get("mask", "yes") == "yes")
