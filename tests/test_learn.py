@@ -130,3 +130,18 @@ def test_ddql_options_parse_in_any_order(tiny_model):
     assert (paper.path, paper.tau, paper.remove_taken, paper.hover, paper.mask) == (str(out), 0.2, False, False, False)
     ours = make_ddql_policy(f"ddql-greedy:{out}")
     assert (ours.path, ours.tau, ours.remove_taken, ours.hover, ours.mask) == (str(out), None, True, True, True)
+
+
+def test_the_best_held_out_checkpoint_is_kept_beside_the_last(tmp_path):
+    from dataclasses import replace
+
+    from swarmctl.learn.ddql import best_path
+
+    out = tmp_path / "m.pt"
+    meta = train(TINY_WORLD, replace(tiny_config(96), eval_every=32), seed=1, out=out, progress=False)
+    evals = meta["evals"]
+    assert len(evals) == 3
+    _, best = load_checkpoint(best_path(out))
+    kept = best["metadata"]["evals"][-1]
+    assert kept["success_rate"] == max(e["success_rate"] for e in evals)
+    assert kept in evals

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import shutil
 import subprocess
 import time
 from dataclasses import asdict, dataclass, field
@@ -84,6 +85,15 @@ def git_commit() -> str:
         return "unknown"
 
 
+def best_path(out: Path) -> Path:
+    """Where train() keeps the checkpoint of its best held-out evaluation: NAME.best.pt beside NAME.pt."""
+    return out.with_name(out.stem + ".best" + out.suffix)
+
+
+def _eval_rank(row: dict) -> tuple:
+    return (row["success_rate"], -row["mean_steps"])
+
+
 def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: torch.device) -> dict:
     """Success rate and mean duration on the fixed held-out episodes, softmax tau = eval_tau."""
     env = SearchEnv(world, batch=cfg.eval_episodes, stop_at_success=True)
@@ -102,7 +112,8 @@ def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: tor
 
 def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path | None = None,
           device: str = "cpu", progress: bool = True, metrics_path: Path | None = None) -> dict:
-    """Train the shared Q-network; writes the checkpoint to `out` and returns its metadata."""
+    """Train the shared Q-network; writes the checkpoint to `out` (and the one of the best held-out
+    evaluation to best_path(out)) and returns its metadata."""
     start_time = time.time()
     torch.manual_seed(seed)
     torch.set_num_threads(cfg.threads)
@@ -218,6 +229,8 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             evals.append({"episodes": episodes_done, **eval_row})
             next_eval += cfg.eval_every
             metadata = save()
+            if max(evals, key=_eval_rank) is evals[-1]:  # the best so far on the held-out episodes
+                shutil.copyfile(out, best_path(out))
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
         writer.writerow([episodes_done, joint_steps, samples, updates, f"{mean_loss:.5f}", f"{explore_value:.4f}",
                          f"{np.mean(recent_success):.3f}", eval_row.get("success_rate", ""),
