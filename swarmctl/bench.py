@@ -49,28 +49,30 @@ def la_decision_seconds(depth: int, seconds: float) -> float:
     return elapsed / (calls * env.uavs)
 
 
-def ddql_decision_seconds(batch_episodes: int, seconds: float) -> float:
-    """Time of one DDQL decision per vehicle: observation, forward pass and softmax sampling.
+def ddql_decision_seconds(batch_episodes: int, seconds: float, options: str = "") -> float:
+    """Time of one DDQL decision per vehicle, as `ddql:PATH[options]` makes it: observation, forward
+    pass, the option rules and softmax sampling.
 
     The weights do not change the cost, so an untrained network of the paper's architecture is timed."""
-    import torch
+    import tempfile
 
-    from swarmctl.policy.ddql import softmax_sample
+    from swarmctl.policy.checkpoint import save_checkpoint
+    from swarmctl.policy.ddql import make_ddql_policy
     from swarmctl.policy.qnet import QNetwork
 
-    env = SearchEnv(WorldConfig(), batch=batch_episodes, observations=False)
+    world = WorldConfig()
+    env = SearchEnv(world, batch=batch_episodes, observations=False)
     env.reset(seed=0)
-    net = QNetwork(20).eval()
-    rng = np.random.default_rng(0)
-
-    def decide():
-        obs = env.observe()
-        with torch.inference_mode():
-            q = net(torch.from_numpy(obs.reshape(-1, 3, 20, 20))).numpy()
-        return softmax_sample(q, 0.1, rng)
-
-    elapsed, calls = _timed(decide, seconds)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "untrained.pt"
+        save_checkpoint(path, QNetwork(world.window), world.as_dict(), {}, {})
+        policy = make_ddql_policy(f"ddql:{path}{options}")
+    policy.reset(env, np.random.default_rng(0))
+    elapsed, calls = _timed(lambda: policy.act(env), seconds)
     return elapsed / (calls * batch_episodes * env.uavs)
+
+
+PAPER_OPTIONS = ":taken=keep:hover=no:mask=no"  # the paper's DDQL Soft: the network and softmax alone
 
 
 def run_bench(seconds: float = 2.0) -> dict:
@@ -88,6 +90,7 @@ def run_bench(seconds: float = 2.0) -> dict:
         "la4_decision_ms": 1000.0 * la_decision_seconds(4, seconds),
         "ddql_decision_ms_batch1": 1000.0 * ddql_decision_seconds(1, seconds),
         "ddql_decision_ms_per_vehicle_batch256": 1000.0 * ddql_decision_seconds(256, seconds),
+        "ddql_paper_decision_ms_batch1": 1000.0 * ddql_decision_seconds(1, seconds, PAPER_OPTIONS),
     }
     out["la4_over_ddql_decision_time"] = out["la4_decision_ms"] / out["ddql_decision_ms_batch1"]
     env = SearchEnv(m20, batch=256, stop_at_success=False)

@@ -41,6 +41,7 @@ def test_bench_json_names_units(tmp_path):
     data = json.loads(out.read_text())
     assert data["env_vehicle_steps_per_s"] > 0 and data["la4_decision_ms"] > 0
     assert data["env_m50_u10_vehicle_steps_per_s"] > 0
+    assert data["ddql_decision_ms_batch1"] > 0 and data["ddql_paper_decision_ms_batch1"] > 0
 
 
 @pytest.mark.parametrize("args, needle", [
