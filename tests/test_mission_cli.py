@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
@@ -48,6 +49,10 @@ def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, 
     got = sorted((p["geometry"]["coordinates"][1], p["geometry"]["coordinates"][0]) for p in points)
     want = sorted((t["lat"], t["lon"]) for t in summary["targets_found"])
     assert np.allclose(got, want, atol=1e-6, rtol=0)
+    ns = {"k": "http://www.opengis.net/kml/2.2"}
+    marks = ET.parse(out / "targets.kml").getroot().findall(".//k:Placemark/k:Point/k:coordinates", ns)
+    in_kml = sorted((float(c.text.split(",")[1]), float(c.text.split(",")[0])) for c in marks)
+    assert np.allclose(in_kml, want, atol=1e-6, rtol=0)
     assert summary["knowledge_radio"]["forwarded"] > 0
     assert "complete: 3 targets found" in capsys.readouterr().out
 

@@ -167,6 +167,7 @@ def run_controller(plan: MissionPlan, folder: Path, view: LiveView | None, extra
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
         rec.write_summary(summary)
         write_targets_geojson(folder / "targets.geojson", summary)
+        write_targets_kml(folder / "targets.kml", summary)
     finally:
         rec.close()
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
@@ -180,6 +181,24 @@ def write_targets_geojson(path: Path, summary: dict) -> Path:
                  "properties": {"cell_x": t["cell"][0], "cell_y": t["cell"][1], "first_step": t["step"],
                                 "mission": summary["mission"]}} for t in summary["targets_found"]]
     path.write_text(json.dumps({"type": "FeatureCollection", "features": features}, indent=1) + "\n")
+    return path
+
+
+def write_targets_kml(path: Path, summary: dict) -> Path:
+    """The targets found as KML placemarks (Google Earth, QGroundControl, ATAK read them)."""
+    import xml.etree.ElementTree as ET
+
+    ns = "http://www.opengis.net/kml/2.2"
+    kml = ET.Element("kml", xmlns=ns)
+    doc = ET.SubElement(kml, "Document")
+    ET.SubElement(doc, "name").text = f"{summary['mission']}: targets found"
+    for t in summary["targets_found"]:
+        mark = ET.SubElement(doc, "Placemark")
+        ET.SubElement(mark, "name").text = f"target {t['cell'][0]},{t['cell'][1]}"
+        ET.SubElement(mark, "description").text = f"cell ({t['cell'][0]}, {t['cell'][1]}), first reported at step {t['step']}"
+        point = ET.SubElement(mark, "Point")
+        ET.SubElement(point, "coordinates").text = f"{t['lon']:.7f},{t['lat']:.7f},0"
+    ET.ElementTree(kml).write(path, encoding="utf-8", xml_declaration=True)
     return path
 
 
