@@ -6,6 +6,7 @@ import io
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -14,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pymavlink import mavutil
 
 from swarmctl.cli import main
 from swarmctl.errors import InputError
@@ -37,9 +39,23 @@ def small_mission(tmp_path: Path, **mission: str) -> Path:
 def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, capsys, policy):
     mission = small_mission(tmp_path)
     out = tmp_path / "run"
+    gcs = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)  # a ground station watching
+    gcs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    gcs.bind(("127.0.0.1", 0))
+    gcs.setblocking(False)
     code = main(["demo", "--mission", str(mission), "--uavs", "3", "--seed", "4", "--speedup", "30",
-                 "--out", str(out), "--no-live", "--end-action", "hover", "--policy", policy])
+                 "--out", str(out), "--no-live", "--end-action", "hover", "--policy", policy,
+                 "--gcs", f"udpout:127.0.0.1:{gcs.getsockname()[1]}"])
     assert code == 0, capsys.readouterr().err
+    parser, seen = mavutil.mavlink.MAVLink(None), set()
+    while True:
+        try:
+            data = gcs.recv(65535)
+        except BlockingIOError:
+            break
+        seen |= {m.get_srcSystem() for m in parser.parse_buffer(data) or [] if m.get_type() == "HEARTBEAT"}
+    gcs.close()
+    assert seen == {1, 2, 3}  # the ground station saw every vehicle
     summary = json.loads((out / "summary.json").read_text())
     assert summary["outcome"] == "complete" and len(summary["targets_found"]) == 3
     assert sorted(map(tuple, summary["hidden_targets"])) == sorted(tuple(t["cell"]) for t in summary["targets_found"])
@@ -94,6 +110,7 @@ BAD = [
     (["demo", "--policy", "lawnmower"], "lawnmower"),
     (["demo", "--policy", "ddql:/nonexistent/model.pt"], "model.pt"),
     (["demo", "--speedup", "-1"], "--speedup"),
+    (["demo", "--gcs", "udpin:0.0.0.0:14550"], "--gcs"),
     (["fly", "/nonexistent/mission.toml"], "no such mission file"),
 ]
 

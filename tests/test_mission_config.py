@@ -60,6 +60,8 @@ def test_a_good_mission_loads(tmp_path):
     ('policy = "la:4"', 'policy = "magic"', "mission.policy"),
     ('policy = "la:4"', 'policy = "ddql:missing.pt"', "mission.policy"),
     ('id = 9', 'id = 70000', "mission.id"),
+    ('id = 9', 'id = 9\ngcs = "udpin:0.0.0.0:14550"', "mission.gcs"),
+    ('id = 9', 'id = 9\ngcs = "udpout:nowhere"', "mission.gcs"),
     ('connection = "udpin:127.0.0.1:14552"', 'connection = "carrier-pigeon:1"', "vehicles[1].connection"),
     ('[knowledge]', '[knowledge]\nfoo = 1', "knowledge.foo"),
 ])

@@ -80,10 +80,13 @@ def view_options(func):
 @click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
 @click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
 @click.option("--time-limit", type=float, default=300.0, show_default=True, help="Search time limit, seconds.")
+@click.option("--gcs", default=None, metavar="udpout:HOST:PORT",
+              help="Forward the mock vehicles' MAVLink to a ground station (QGroundControl: udpout:127.0.0.1:14550). "
+                   "Default: the mission file's gcs, else none.")
 @view_options
 def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mission_file: Path | None,
-                 speedup: float, targets: int | None, end_action: str, time_limit: float, quiet: bool,
-                 no_live: bool) -> None:
+                 speedup: float, targets: int | None, end_action: str, time_limit: float, gcs: str | None,
+                 quiet: bool, no_live: bool) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
@@ -92,7 +95,7 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
-    from swarmctl.mission.service import LiveView, draw_mission, run_controller
+    from swarmctl.mission.service import LiveView, draw_mission, gcs_address, run_controller
     from swarmctl.mission.sim import SimSwarm
 
     if not 1 <= uavs <= 50:
@@ -103,6 +106,7 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
         raise InputError(f"--time-limit {time_limit}: must be a number of seconds > 0")
     if targets is not None and targets < 1:
         raise InputError(f"--targets {targets}: hide at least one target")
+    gcs_to = gcs_address(gcs, "--gcs")
     note = None
     if policy is None:
         policy, note = default_policy()
@@ -117,6 +121,7 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
         cfg = load_mission(mission_file)
         grid, grid_file = load_grid(cfg), cfg.grid
         settings = dict(altitude=float(cfg.altitude), mission_id=cfg.mission_id)
+        gcs_to = gcs_to or gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs")
     else:
         grid_file = _find(DEMO_GRID)
         if grid_file is None:
@@ -132,7 +137,7 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
     except ValueError as exc:
         raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
     with swarm:
-        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file)
+        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to)
         if mission_file is not None:
             plan.name, plan.mission_file = cfg.name, cfg.path
         if not quiet:

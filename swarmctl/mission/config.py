@@ -12,6 +12,7 @@
     time_limit = 900.0          # seconds for the whole search
     end_action = "rtl"          # land | rtl | hover
     signing_key = "swarm.key"   # optional, 32-byte MAVLink 2 signing key
+    gcs = "udpout:127.0.0.1:14550"   # optional: forward the vehicles' MAVLink to a ground station
 
     [knowledge]
     channel = "udpout:127.0.0.1:14600"   # where the agents exchange TUNNEL messages
@@ -39,7 +40,7 @@ AUTOPILOTS = ("ardupilot", "px4")
 OBSERVATION_WINDOW = 20  # F: the controller observes 20 x 20 windows, like the simulator
 
 _MISSION_KEYS = {"name", "id", "grid", "area", "buildings", "cell_size", "altitude", "policy", "step_period",
-                 "step_timeout", "time_limit", "end_action", "signing_key"}
+                 "step_timeout", "time_limit", "end_action", "signing_key", "gcs"}
 _KNOWLEDGE_KEYS = {"channel", "digest_every"}
 _VEHICLE_KEYS = {"name", "connection", "sysid", "autopilot", "detector"}
 _TOP_KEYS = {"mission", "knowledge", "vehicles"}
@@ -73,6 +74,7 @@ class MissionConfig:
     signing_key: Path | None = None
     knowledge_channel: str | None = None
     digest_every: int = 5
+    gcs: str | None = None
 
 
 def _fail(path: Path, key: str, problem: str, fix: str) -> InputError:
@@ -222,7 +224,19 @@ def load_mission(path: str | Path) -> MissionConfig:
         end_action=end_action, signing_key=_file(path, mission, "signing_key", where),
         knowledge_channel=knowledge.get("channel"),
         digest_every=_number(path, knowledge, "digest_every", "knowledge.", 5, 1, integer=True),
+        gcs=_gcs(path, mission),
     )
+
+
+def _gcs(path: Path, mission: dict) -> str | None:
+    value = mission.get("gcs")
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value.startswith("udpout:"):
+        raise _fail(path, "mission.gcs", f"= {value!r} is not a UDP address to send to",
+                    'write for example gcs = "udpout:127.0.0.1:14550" (QGroundControl listens there)')
+    _check_connection(path, "mission.gcs", value)
+    return value
 
 
 def _check_connection(path: Path, key: str, connection: str) -> None:

@@ -39,6 +39,7 @@ import numpy as np
 
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mavlink.gcs import GcsForwarder
 from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
 from swarmctl.mission.config import VehicleSpec
 from swarmctl.mission.decide import FieldPolicy
@@ -94,6 +95,7 @@ class MissionPlan:
     end_timeout: float = 180.0  # seconds to wait for landing after the end action
     detectors: dict[int, tuple[str, int]] = field(default_factory=dict)  # vehicle index -> local UDP socket
     only: list[int] | None = None  # onboard mode: the indices of the vehicles this process flies
+    gcs: tuple[str, int] | None = None  # forward the vehicles' MAVLink to this ground station (UDP)
 
 
 class Agent:
@@ -191,6 +193,7 @@ class Controller:
         self.agents: list[Agent] = []
         self.links: dict[str, Any] = {}
         self.sources: list[UdpSensorSource] = []
+        self.gcs = GcsForwarder(*plan.gcs) if plan.gcs else None
         self.step = 0
         self.outcome: str | None = None
         self.started = time.monotonic()
@@ -251,6 +254,8 @@ class Controller:
                     self.rec.tap_link(link)
                     link.add_listener(self._count_gaps)
                     link.on_link_change(self._link_change)
+                    if self.gcs is not None:
+                        link.add_listener(self.gcs.forward)
                     self.links[spec.connection] = link
                 link.add_listener(feed.listener(spec.sysid))
                 vehicle = ArduPilotVehicle(link, spec.sysid, name=spec.name, telemetry_rate_hz=plan.telemetry_hz)
@@ -659,6 +664,8 @@ class Controller:
             a.exchange.close()
         for link in self.links.values():
             await link.close()
+        if self.gcs is not None:
+            self.gcs.close()
 
     def overhead_ms(self) -> dict:
         """Per decision round (ms): the policy, the CPU time of the controller's loop thread, the whole

@@ -37,15 +37,28 @@ def load_grid(cfg: MissionConfig) -> Any:
 
 def channel_address(value: str | None, where: str) -> tuple[str, int]:
     """The knowledge channel (udpout:HOST:PORT) as a (host, port) to send to."""
-    from swarmctl.mavlink.codec import parse_connection
-
     if value is None:
         return ("127.0.0.1", 14600)
+    return udpout_address(value, where, "the knowledge channel is a UDP address the agents send to",
+                          "udpout:127.0.0.1:14600", "a MAVLink router or radio")
+
+
+def udpout_address(value: str, where: str, what: str, example: str, hint: str) -> tuple[str, int]:
+    """udpout:HOST:PORT as (host, port); InputError naming `where` otherwise."""
+    from swarmctl.mavlink.codec import parse_connection
+
     ep = parse_connection(value, field=where)
     if ep.kind != "udpout":
-        raise InputError(f"{where} = {value!r}: the knowledge channel is a UDP address the agents send to; "
-                         'write for example "udpout:127.0.0.1:14600" (a MAVLink router or radio)')
+        raise InputError(f"{where} = {value!r}: {what}; write for example \"{example}\" ({hint})")
     return (ep.host, int(ep.port))
+
+
+def gcs_address(value: str | None, where: str) -> tuple[str, int] | None:
+    """The ground station to forward the vehicles' MAVLink to, if any."""
+    if value is None:
+        return None
+    return udpout_address(value, where, "the ground station is a UDP address to send to",
+                          "udpout:127.0.0.1:14550", "QGroundControl listens there")
 
 
 def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector: str | None = None,
@@ -72,7 +85,8 @@ def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector
                        end_action=cfg.end_action, signing_key=key,
                        knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
                        digest_every=cfg.digest_every, seed=seed, grid_file=cfg.grid, mission_file=cfg.path,
-                       only=keep if only else None, detectors=detectors)
+                       only=keep if only else None, detectors=detectors,
+                       gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"))
     return plan
 
 
