@@ -208,8 +208,9 @@ def write_targets_kml(path: Path, summary: dict) -> Path:
     ET.SubElement(doc, "name").text = f"{summary['mission']}: targets found"
     for t in summary["targets_found"]:
         mark = ET.SubElement(doc, "Placemark")
-        ET.SubElement(mark, "name").text = f"target {t['cell'][0]},{t['cell'][1]}"
-        ET.SubElement(mark, "description").text = f"cell ({t['cell'][0]}, {t['cell'][1]}), first reported at step {t['step']}"
+        x, y = t["cell"]
+        ET.SubElement(mark, "name").text = f"target {x},{y}"
+        ET.SubElement(mark, "description").text = f"cell ({x}, {y}), first reported at step {t['step']}"
         point = ET.SubElement(mark, "Point")
         ET.SubElement(point, "coordinates").text = f"{t['lon']:.7f},{t['lat']:.7f},0"
     ET.ElementTree(kml).write(path, encoding="utf-8", xml_declaration=True)

@@ -109,7 +109,8 @@ _CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no"), "mask": ("yes",
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
-    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]` or `ddql-greedy:PATH[...]`."""
+    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]` or
+    `ddql-greedy:PATH[...]`, options in any order."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
@@ -127,7 +128,8 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
             raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
     for key, allowed in _CHOICES.items():
         if options.get(key, allowed[0]) not in allowed:
-            raise InputError(f"--policy {spec!r}: {key} must be {' or '.join(allowed)}, as in ddql:PATH:{key}={allowed[1]}")
+            raise InputError(f"--policy {spec!r}: {key} must be {' or '.join(allowed)}, "
+                             f"as in ddql:PATH:{key}={allowed[1]}")
     if kind == "ddql-greedy":
         tau = None
     return DDQLPolicy(path, tau=tau, name=spec, remove_taken=options.get("taken", "remove") == "remove",

@@ -1,5 +1,5 @@
 """Policy specs as users type them: `random`, `la:4`, `lawnmower`, `frontier`, `oracle`,
-`ddql:PATH[:tau=0.1]`, `ddql-greedy:PATH`."""
+`ddql:PATH[:options]` (swarmctl.policy.ddql), `ddql-greedy:PATH`."""
 
 from __future__ import annotations
 
@@ -8,7 +8,8 @@ from swarmctl.policy.lookahead import LookAhead
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.planners import FrontierPolicy, LawnmowerPolicy, RandomPolicy
 
-POLICY_HELP = "random, la:N (N = 1..6), lawnmower, frontier, oracle, ddql:PATH[:tau=T], ddql-greedy:PATH"
+POLICY_HELP = ("random, la:N (N = 1..6), lawnmower, frontier, oracle, "
+               "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..], ddql-greedy:PATH")
 
 
 def make_policy(spec: str):
