@@ -31,7 +31,9 @@ def main() -> None:
         "",
         f"The shared Q-network (76,509 parameters, the paper's 3 conv + 2 linear layers) trained with DDQL on the "
         f"**{world['scenario']}** scenario: {world['map_size']} x {world['map_size']} map, {world['uavs']} UAVs, "
-        f"{world['targets']} targets, obstacles eta = {world['obstacles']}, window F = {world['window']}.",
+        f"{world['targets']} targets, obstacles eta = {world['obstacles']}, window F = {world['window']}"
+        + (", trained on observations with taken targets removed (`--remove-taken`)." if world.get("remove_taken")
+           else "."),
         "",
         "## Training",
         "",
@@ -48,7 +50,7 @@ def main() -> None:
         "- hyperparameters: " + ", ".join(f"{k} = {v}" for k, v in train.items() if k != "extra"),
         "",
         "Held-out evaluations during training (200 episodes, seed "
-        f"{train['eval_seed']}, softmax tau {train['eval_tau']}):",
+        f"{train['eval_seed']}, the network alone with softmax tau {train['eval_tau']}):",
         "",
         "| episodes | success | mean steps |",
         "| --- | --- | --- |",
