@@ -37,8 +37,7 @@ def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int
     act_seconds, decisions = 0.0, 0
     bar = tqdm(total=episodes, desc=f"{spec:>12}", unit="ep", disable=not progress, leave=False)
     for start, n in _chunks(episodes, chunk):
-        needs_obs = getattr(policy, "needs_observations", False)
-        env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=needs_obs)
+        env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=False)  # policies observe for themselves
         env.reset(seed, range(start, start + n))
         bound = OracleBound().durations(env)
         oracle.append(np.minimum(bound, steps))

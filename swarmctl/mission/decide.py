@@ -30,10 +30,11 @@ from swarmctl.errors import InputError
 from swarmctl.policy import planners
 from swarmctl.policy.ddql import allowed_moves, choose
 from swarmctl.policy.registry import make_policy
+from swarmctl.world.config import WorldConfig
 from swarmctl.world.knowledge import PHI_TOLERANCE, Knowledge
 from swarmctl.world.moves import MOVES
 
-FIELD_POLICIES = "ddql:PATH[:tau=T], ddql-greedy:PATH, la:N, frontier, random"
+FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, random"
 
 
 @dataclass
@@ -41,6 +42,16 @@ class Choice:
     move: int
     obs_digest: str | None = None
     q: list[float] | None = None
+
+
+def _blocked(kn: Knowledge) -> np.ndarray:
+    """(W, H) bool: the obstacles the agent knows of, and the cells of the peers hovering on a target:
+    those stay there and the guard refuses every move into them, so planners go round them."""
+    blocked = kn.obstacle.copy()
+    for p in kn.peers.values():
+        if p.on_target and p.cell is not None:
+            blocked[p.cell] = True
+    return blocked
 
 
 class _FieldView:
@@ -52,12 +63,7 @@ class _FieldView:
         self.cfg = SimpleNamespace(window=window, fov=fov)
         self.pos = np.array(cells, dtype=np.int64).reshape(1, -1, 2)
         self.explored = np.broadcast_to(kn.explored, (1, self.uavs, kn.width, kn.height))
-        # a vehicle hovering on a target stays there: to the others its cell is an obstacle to go round
-        blocked = kn.obstacle.copy()
-        for p in kn.peers.values():
-            if p.on_target and p.cell is not None:
-                blocked[p.cell] = True
-        self._obstacles = np.broadcast_to(blocked, (1, self.uavs, kn.width, kn.height))
+        self._obstacles = np.broadcast_to(_blocked(kn), (1, self.uavs, kn.width, kn.height))
         self.targets = np.asarray(targets, dtype=np.int64).reshape(1, -1, 2)
 
     def known_obstacles(self) -> np.ndarray:
@@ -111,7 +117,7 @@ class _KnowledgeWorld:
     def __init__(self, kn: Knowledge):
         self.kn = kn
         self.width, self.height = kn.width, kn.height
-        self.cfg = SimpleNamespace(sigma2=1.0, phi_cutoff=0.01)  # the value map's (WorldConfig defaults)
+        self.cfg = SimpleNamespace(sigma2=WorldConfig.sigma2, phi_cutoff=WorldConfig.phi_cutoff)  # the value map's
         self.explored = kn.explored[None, None]
         self.pos = np.array(kn.own_position.cell, dtype=np.int64).reshape(1, 1, 2)
         self.target_mask = np.zeros((1, kn.width, kn.height), dtype=bool)
@@ -122,11 +128,7 @@ class _KnowledgeWorld:
         return np.where(self.explored, self.kn.phi, np.float32(1.0))
 
     def known_obstacles(self) -> np.ndarray:
-        blocked = self.kn.obstacle.copy()
-        for p in self.kn.peers.values():
-            if p.on_target and p.cell is not None:
-                blocked[p.cell] = True
-        return self.explored & blocked
+        return self.explored & _blocked(self.kn)
 
     def taken_targets(self) -> np.ndarray:
         return self.kn.taken_targets()[None, None]

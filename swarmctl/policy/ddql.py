@@ -72,8 +72,6 @@ def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, rng: np.random
 
 
 class DDQLPolicy:
-    needs_observations = True
-
     def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
                  hover: bool = True, mask: bool = True):
         self.path = path
@@ -97,9 +95,7 @@ class DDQLPolicy:
         return q.numpy().reshape(b, u, -1)
 
     def act(self, env: SearchEnv) -> np.ndarray:
-        obs = env.last_observations
-        if obs is None or env.cfg.remove_taken != self.remove_taken:
-            obs = env.observe(self.remove_taken)
+        obs = env.observe(self.remove_taken)  # its own observation: the world's setting may differ
         allowed = allowed_moves(env.pos, hovering(env) if self.hover else None,
                                 env.known_obstacles() if self.mask else None)
         return choose(self.q_values(obs), allowed, self.tau, self.rng)
