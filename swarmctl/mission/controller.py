@@ -424,7 +424,7 @@ class Controller:
                 self.outcome = "interrupted"
                 return
             live = [a for a in self.agents if a.live]
-            if not live and not any(a.state in (LOST,) for a in self.agents):
+            if not live and not any(a.state == LOST for a in self.agents):
                 self.outcome = "failed"
                 return
             if live and all(a.state == HOVER for a in live) and self._others_hovering():
@@ -624,7 +624,7 @@ class Controller:
         if a.state in (FAILED, CONNECT, PREFLIGHT) and not a.vehicle.armed:
             a.end_state = a.state
             return
-        if a.state in (LOST,) or a.vehicle.lost:
+        if a.state == LOST or a.vehicle.lost:
             a.end_state = "lost (left to its failsafe)"
             self.rec.event("end_action", vehicle=a.name, action="none: link lost")
             return
