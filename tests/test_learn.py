@@ -145,3 +145,20 @@ def test_the_best_held_out_checkpoint_is_kept_beside_the_last(tmp_path):
     kept = best["metadata"]["evals"][-1]
     assert kept["success_rate"] == max(e["success_rate"] for e in evals)
     assert kept in evals
+
+
+def test_snapshots_keep_the_checkpoint_as_it_stood_at_each_count(tmp_path):
+    from dataclasses import replace
+
+    from swarmctl.learn.ddql import snapshot_path
+
+    out = tmp_path / "m.pt"
+    cfg = replace(tiny_config(96), eval_every=1000, snapshots=(32, 64))
+    train(TINY_WORLD, cfg, seed=1, out=out, progress=False)
+    first, info32 = load_checkpoint(snapshot_path(out, 32))
+    second, info64 = load_checkpoint(snapshot_path(out, 64))
+    last, info = load_checkpoint(out)
+    assert (info32["metadata"]["episodes"], info64["metadata"]["episodes"], info["metadata"]["episodes"]) == (32, 64, 96)
+    weights = [next(m.parameters()).detach().clone() for m in (first, second, last)]
+    assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[1], weights[2])
+    assert not snapshot_path(out, 96).exists()

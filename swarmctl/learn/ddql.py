@@ -58,6 +58,7 @@ class TrainConfig:
     eval_seed: int = 2026  # held-out evaluation episodes (the README tables use seed 0)
     eval_steps: int = 40
     eval_tau: float = 0.1
+    snapshots: tuple[int, ...] = ()  # episode counts at which a copy is kept as NAME.epN.pt (learning curves)
     threads: int = 2  # torch CPU threads
     extra: dict = field(default_factory=dict)
 
@@ -88,6 +89,11 @@ def git_commit() -> str:
 def best_path(out: Path) -> Path:
     """Where train() keeps the checkpoint of its best held-out evaluation: NAME.best.pt beside NAME.pt."""
     return out.with_name(out.stem + ".best" + out.suffix)
+
+
+def snapshot_path(out: Path, episodes: int) -> Path:
+    """Where train() keeps the checkpoint as it stood after `episodes` episodes (TrainConfig.snapshots)."""
+    return out.with_name(f"{out.stem}.ep{episodes}{out.suffix}")
 
 
 def _eval_rank(row: dict) -> tuple:
@@ -222,13 +228,17 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
         recent_loss, recent_success = recent_loss[-200:], recent_success[-200:]
         wall = time.time() - start_time
         eval_row = {}
-        if episodes_done >= next_eval or episodes_done >= cfg.episodes:
+        snapshot_due = episodes_done in cfg.snapshots
+        if episodes_done >= next_eval or episodes_done >= cfg.episodes or snapshot_due:
             q_net.eval()
             eval_row = greedy_eval(q_net, world, cfg, dev)
             q_net.train()
             evals.append({"episodes": episodes_done, **eval_row})
-            next_eval += cfg.eval_every
+            if episodes_done >= next_eval:
+                next_eval += cfg.eval_every
             metadata = save()
+            if snapshot_due:
+                shutil.copyfile(out, snapshot_path(out, episodes_done))
             if max(evals, key=_eval_rank) is evals[-1]:  # the best so far on the held-out episodes
                 shutil.copyfile(out, best_path(out))
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
