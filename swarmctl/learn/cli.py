@@ -77,10 +77,13 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
 @click.option("--plain-target", is_flag=True, help="Use the plain target-network target, not double DQN.")
 @click.option("--eval-every", type=int, default=250, show_default=True, help="Episodes between evaluations.")
 @click.option("--eval-episodes", type=int, default=200, show_default=True)
+@click.option("--eval-steps", type=int, default=40, show_default=True,
+              help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).")
 @click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
 @click.option("--progress/--no-progress", default=True)
 def train_command(episodes, seed, out, init, device, exploration, temperature, epsilon, parallel, batch_size, updates_per_step, lr, prefill,
-                  replay_capacity, target_every, plain_target, eval_every, eval_episodes, threads, progress, **kwargs):
+                  replay_capacity, target_every, plain_target, eval_every, eval_episodes, eval_steps, threads, progress,
+                  **kwargs):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
     import torch
 
@@ -95,7 +98,8 @@ def train_command(episodes, seed, out, init, device, exploration, temperature, e
     require(prefill >= 0, f"--prefill {prefill} must be >= 0")
     require(replay_capacity >= batch_size, f"--replay {replay_capacity} must hold at least one batch ({batch_size})")
     require(target_every >= 1, f"--target-every {target_every} must be >= 1")
-    require(eval_every >= 1 and eval_episodes >= 1, "--eval-every and --eval-episodes must be >= 1")
+    require(eval_every >= 1 and eval_episodes >= 1 and eval_steps >= 1,
+            "--eval-every, --eval-episodes and --eval-steps must be >= 1")
     require(threads >= 1, f"--threads {threads} must be >= 1")
     require(min(temperature) > 0, f"--temperature {temperature[0]} {temperature[1]}: temperatures must be > 0")
     require(all(0 <= e <= 1 for e in epsilon), f"--epsilon {epsilon[0]} {epsilon[1]}: epsilons must be in [0, 1]")
@@ -109,7 +113,8 @@ def train_command(episodes, seed, out, init, device, exploration, temperature, e
                       updates_per_step=updates_per_step, lr=lr, prefill_episodes=prefill,
                       replay_capacity=replay_capacity, target_update_every=target_every, double=not plain_target,
                       exploration=exploration, temperature_start=temperature[0], temperature_end=temperature[1],
-                      epsilon_start=epsilon[0], epsilon_end=epsilon[1], eval_every=eval_every, eval_episodes=eval_episodes, threads=threads)
+                      epsilon_start=epsilon[0], epsilon_end=epsilon[1], eval_every=eval_every, eval_episodes=eval_episodes,
+                      eval_steps=eval_steps, threads=threads)
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
     final = meta["final_eval"] or {}
     click.echo(f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
