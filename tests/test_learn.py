@@ -162,3 +162,57 @@ def test_snapshots_keep_the_checkpoint_as_it_stood_at_each_count(tmp_path):
     weights = [next(m.parameters()).detach().clone() for m in (first, second, last)]
     assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[1], weights[2])
     assert not snapshot_path(out, 96).exists()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10_000), st.sampled_from(["softmax", "egreedy"]), st.floats(0.01, 1.0))
+def test_exploration_under_the_rules_never_picks_a_refused_move(seed, exploration, value):
+    from swarmctl.learn.ddql import explore
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(64, 5)).astype(np.float32)
+    allowed = rng.random((64, 5)) < 0.4
+    allowed[~allowed.any(1), 0] = True
+    cfg = TrainConfig(exploration=exploration)
+    actions = explore(q, cfg, value, rng, allowed)
+    assert allowed[np.arange(64), actions].all()
+
+
+def test_training_under_the_rules_hovers_and_never_leaves_the_map(monkeypatch, tmp_path):
+    """With --rules, every exploratory action passes the rule mask: vehicles on a free target stay, and
+    no move leaves the map."""
+    from dataclasses import replace
+
+    import swarmctl.learn.ddql as ddql
+    from swarmctl.policy.base import hovering
+    from swarmctl.world.moves import MOVES, STAY
+
+    calls = []
+    real_mask, real_explore = ddql.rule_mask, ddql.explore
+
+    def mask_spy(env):
+        mask = real_mask(env)
+        calls.append({"hover": hovering(env).ravel().copy(), "pos": env.pos.reshape(-1, 2).copy(),
+                      "size": (env.width, env.height)})
+        return mask
+
+    def explore_spy(q, cfg, value, rng, allowed=None):
+        actions = real_explore(q, cfg, value, rng, allowed)
+        if calls and "actions" not in calls[-1]:
+            calls[-1]["actions"] = actions
+        return actions
+
+    monkeypatch.setattr(ddql, "rule_mask", mask_spy)
+    monkeypatch.setattr(ddql, "explore", explore_spy)
+    cfg = replace(tiny_config(16), rules=True, prefill_episodes=0, eval_every=1000)
+    ddql.train(TINY_WORLD, cfg, seed=3, out=tmp_path / "r.pt", progress=False)
+    steps = [c for c in calls if "actions" in c]
+    assert len(steps) >= 16 * 50 // 8  # every joint step of training went through the rules
+    hovered = 0
+    for c in steps:
+        dest = c["pos"] + MOVES[c["actions"]]
+        w, h = c["size"]
+        assert ((dest >= 0) & (dest < [w, h])).all()
+        assert (c["actions"][c["hover"]] == STAY).all()
+        hovered += c["hover"].sum()
+    assert hovered > 0  # the tiny map's vehicles do reach targets

@@ -66,6 +66,9 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
               metavar="START END", help="Softmax exploration temperature, annealed linearly over the run.")
 @click.option("--epsilon", nargs=2, type=float, default=(1.0, 0.0), show_default=True,
               metavar="START END", help="Epsilon-greedy exploration, annealed linearly over the run.")
+@click.option("--rules/--no-rules", default=False, show_default=True,
+              help="Explore and evaluate under the deployment rules of ddql:PATH (hover on a free target, no move "
+                   "off the map or into a known obstacle); --no-rules is the paper.")
 @click.option("--parallel", type=int, default=16, show_default=True, help="Episodes stepped together.")
 @click.option("--batch-size", type=int, default=64, show_default=True)
 @click.option("--updates-per-step", type=float, default=1.0, show_default=True,
@@ -81,7 +84,7 @@ def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs)
               help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).")
 @click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
 @click.option("--progress/--no-progress", default=True)
-def train_command(episodes, seed, out, init, device, exploration, temperature, epsilon, parallel, batch_size, updates_per_step, lr, prefill,
+def train_command(episodes, seed, out, init, device, exploration, temperature, epsilon, rules, parallel, batch_size, updates_per_step, lr, prefill,
                   replay_capacity, target_every, plain_target, eval_every, eval_episodes, eval_steps, threads, progress,
                   **kwargs):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
@@ -112,7 +115,7 @@ def train_command(episodes, seed, out, init, device, exploration, temperature, e
     cfg = TrainConfig(episodes=episodes, parallel_envs=parallel, batch_size=batch_size,
                       updates_per_step=updates_per_step, lr=lr, prefill_episodes=prefill,
                       replay_capacity=replay_capacity, target_update_every=target_every, double=not plain_target,
-                      exploration=exploration, temperature_start=temperature[0], temperature_end=temperature[1],
+                      exploration=exploration, rules=rules, temperature_start=temperature[0], temperature_end=temperature[1],
                       epsilon_start=epsilon[0], epsilon_end=epsilon[1], eval_every=eval_every, eval_episodes=eval_episodes,
                       eval_steps=eval_steps, threads=threads)
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)

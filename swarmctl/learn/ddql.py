@@ -24,7 +24,8 @@ from tqdm import tqdm
 
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
-from swarmctl.policy.ddql import softmax_sample
+from swarmctl.policy.base import hovering
+from swarmctl.policy.ddql import allowed_moves, softmax_sample
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -49,6 +50,8 @@ class TrainConfig:
     huber: bool = True  # Huber (smooth L1) loss; False = MSE
     max_grad_norm: float = 10.0
     exploration: str = "softmax"  # softmax | egreedy
+    rules: bool = False  # act under the deployment rules (hover on a free target, no move off the map or into a
+    #                      known obstacle) while exploring and in the held-out evaluation; False = the paper
     temperature_start: float = 1.0  # softmax temperature, annealed linearly ...
     temperature_end: float = 0.1  # ... to the test-time tau
     epsilon_start: float = 1.0  # epsilon-greedy, annealed linearly ...
@@ -69,13 +72,24 @@ class TrainConfig:
         return self.epsilon_start + (self.epsilon_end - self.epsilon_start) * progress
 
 
-def explore(q: np.ndarray, cfg: TrainConfig, value: float, rng: np.random.Generator) -> np.ndarray:
-    """Exploratory actions for Q-values q (N, 5)."""
+def explore(q: np.ndarray, cfg: TrainConfig, value: float, rng: np.random.Generator,
+            allowed: np.ndarray | None = None) -> np.ndarray:
+    """Exploratory actions for Q-values q (N, 5), among the `allowed` (N, 5) moves when given."""
+    if allowed is not None:
+        q = np.where(allowed, q, -np.inf)
     if cfg.exploration == "softmax":
         return softmax_sample(q, value, rng)
     greedy = q.argmax(axis=1)
-    random = rng.integers(0, q.shape[1], size=q.shape[0])
+    if allowed is None:
+        random = rng.integers(0, q.shape[1], size=q.shape[0])
+    else:  # uniform among the allowed moves
+        random = softmax_sample(np.where(allowed, 0.0, -np.inf), 1.0, rng)
     return np.where(rng.random(q.shape[0]) < value, random, greedy)
+
+
+def rule_mask(env: SearchEnv) -> np.ndarray:
+    """(B * U, 5) bool: the moves the deployment rules allow (policy.ddql: hover and mask)."""
+    return allowed_moves(env.pos, hovering(env), env.known_obstacles()).reshape(-1, 5)
 
 
 def git_commit() -> str:
@@ -101,7 +115,8 @@ def _eval_rank(row: dict) -> tuple:
 
 
 def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: torch.device) -> dict:
-    """Success rate and mean duration on the fixed held-out episodes, softmax tau = eval_tau."""
+    """Success rate and mean duration on the fixed held-out episodes, softmax tau = eval_tau (under the
+    deployment rules when cfg.rules)."""
     env = SearchEnv(world, batch=cfg.eval_episodes, stop_at_success=True)
     obs = env.reset(seed=cfg.eval_seed)
     rng = np.random.default_rng(cfg.eval_seed)
@@ -110,6 +125,8 @@ def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: tor
             break
         with torch.inference_mode():
             q = net(torch.from_numpy(obs.reshape(-1, *obs.shape[2:])).to(device)).cpu().numpy()
+        if cfg.rules:
+            q = np.where(rule_mask(env), q, -np.inf)
         actions = softmax_sample(q, cfg.eval_tau, rng).reshape(env.batch, env.uavs)
         obs, _, _, _ = env.step(actions)
     duration = np.where(env.done, env.duration, cfg.eval_steps)
@@ -191,7 +208,7 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             flat_obs = obs.reshape(-1, *obs_shape)
             with torch.inference_mode():
                 q = q_net(torch.from_numpy(flat_obs).to(dev)).cpu().numpy()
-            actions = explore(q, cfg, explore_value, rng).reshape(p, env.uavs)
+            actions = explore(q, cfg, explore_value, rng, rule_mask(env) if cfg.rules else None).reshape(p, env.uavs)
             next_obs, reward, success, _ = env.step(actions)
             succeeded |= success
             replay.add(flat_obs, actions.ravel(), reward.ravel(), next_obs.reshape(-1, *obs_shape))
