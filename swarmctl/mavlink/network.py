@@ -63,6 +63,10 @@ class Peer:
     statustexts: deque = field(default_factory=lambda: deque(maxlen=50))
     command_lock: asyncio.Lock = field(default_factory=asyncio.Lock)
 
+    def texts_since(self, started: float) -> str:
+        """The STATUSTEXTs received since `started` (time.monotonic()), joined: why a vehicle refused."""
+        return "; ".join(t for (ts, _sev, t) in self.statustexts if ts >= started - 0.05)
+
 
 @dataclass
 class LinkStats:
@@ -348,9 +352,8 @@ class MavlinkLink:
                     if ack.result == MAV.MAV_RESULT_ACCEPTED:
                         return ack
                     await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
-                    reason = "; ".join(t for (ts, _sev, t) in peer.statustexts if ts >= started - 0.05)
                     raise CommandRejected(name, who, MAV_RESULT_NAMES.get(ack.result, str(ack.result)),
-                                          reason)
+                                          peer.texts_since(started))
                 log.info("%s: no ack to %s (attempt %d of %d)", who, name, attempt + 1, attempts)
             raise CommandTimeout(name, who, attempts, timeout)
 

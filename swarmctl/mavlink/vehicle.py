@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import math
 import time
 from dataclasses import dataclass
 
@@ -37,6 +38,21 @@ class Target:
     lat: float
     lon: float
     rel_alt: float
+
+
+def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The (lat, lon) vertices of a fence polygon, checked: at least 3, all distinct and in range; a
+    last vertex that repeats the first (a closed ring) is dropped. ValueError otherwise."""
+    vertices = [(float(lat), float(lon)) for lat, lon in polygon]
+    if len(vertices) > 1 and vertices[0] == vertices[-1]:
+        vertices.pop()
+    for lat, lon in vertices:
+        if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 180.0):
+            raise ValueError(f"fence vertex ({lat!r}, {lon!r}) is not a latitude, longitude in degrees")
+    if len(set(vertices)) < 3 or len(set(vertices)) != len(vertices):
+        raise ValueError(f"a fence polygon needs at least 3 distinct vertices, not {len(vertices)} "
+                         f"({len(set(vertices))} distinct)")
+    return vertices
 
 
 class Vehicle(abc.ABC):
@@ -88,6 +104,11 @@ class Vehicle(abc.ABC):
     async def resume(self) -> None:
         """Take an airborne vehicle back from its own failsafe (RTL, LAND) and hold it where it is, so
         that position targets steer it again."""
+
+    @abc.abstractmethod
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """Make polygon ((lat, lon) vertices, degrees) the vehicle's inclusion geofence and turn the
+        fence on; the autopilot then refuses targets outside it and acts on a breach by itself."""
 
     # --- state ----------------------------------------------------------------------------------------
     @property

@@ -5,6 +5,8 @@ wait for the pre-arm checks to pass -> GUIDED -> arm -> MAV_CMD_NAV_TAKEOFF to t
 -> wait for the altitude -> SET_POSITION_TARGET_GLOBAL_INT (frame GLOBAL_RELATIVE_ALT_INT, position-only
 type_mask 3576) -> LAND or RTL. A fresh ArduPilot link sends only heartbeats, so telemetry is requested
 with MAV_CMD_SET_MESSAGE_INTERVAL, and requested again whenever it stops (e.g. after a reboot).
+A geofence goes up with the mission protocol (mission_type FENCE) and is switched on with
+MAV_CMD_DO_FENCE_ENABLE (see upload_fence).
 """
 
 from __future__ import annotations
@@ -16,9 +18,9 @@ import time
 from typing import Any
 
 from swarmctl.mavlink.codec import COPTER_MODE_NAMES, COPTER_MODES, from_deg_e7, to_deg_e7
-from swarmctl.mavlink.errors import CommandRejected, MavlinkError
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
 from swarmctl.mavlink.network import MAV, MavlinkLink
-from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle
+from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +36,20 @@ TELEMETRY = {
     MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
 }
 
+_UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
+
+
+def fence_items(mav: Any, target_system: int, target_component: int,
+                vertices: list[tuple[float, float]]) -> list[Any]:
+    """The MISSION_ITEM_INT messages of one inclusion polygon (mission_type FENCE): one per vertex,
+    MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, param1 = the vertex count, frame MAV_FRAME_GLOBAL,
+    x/y = lat/lon in degE7."""
+    n = float(len(vertices))
+    return [mav.mission_item_int_encode(target_system, target_component, seq, MAV.MAV_FRAME_GLOBAL,
+                                        MAV.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, 0, 0, n, 0.0, 0.0,
+                                        0.0, to_deg_e7(lat), to_deg_e7(lon), 0.0, MAV.MAV_MISSION_TYPE_FENCE)
+            for seq, (lat, lon) in enumerate(vertices)]
+
 
 class ArduPilotVehicle(Vehicle):
     """One ArduCopter (sysid) on a MavlinkLink that may carry other vehicles too."""
@@ -42,11 +58,13 @@ class ArduPilotVehicle(Vehicle):
 
     def __init__(self, link: MavlinkLink, sysid: int, *, name: str | None = None,
                  telemetry_rate_hz: float = 5.0, command_timeout: float = 1.0, retries: int = 3,
-                 owns_link: bool = False):
+                 mission_timeout: float = 1.5, owns_link: bool = False):
         self.link, self.sysid = link, sysid
         self.name = name or f"vehicle {sysid}"
         self.telemetry_rate_hz = telemetry_rate_hz
         self.command_timeout, self.retries = command_timeout, retries
+        # mission protocol: longer than ArduPilot's own 1 s re-request, so resends do not race it
+        self.mission_timeout = mission_timeout
         self.owns_link = owns_link
         self.target: Target | None = None
         self._target_sent = 0.0
@@ -206,6 +224,73 @@ class ArduPilotVehicle(Vehicle):
         self.target = None  # GUIDED with no target holds position
         self._target_sent = 0.0
         await self.set_mode("GUIDED")
+
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """Upload polygon as the inclusion fence (mission protocol, mission_type FENCE), then switch the
+        fence on with MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION; the
+        polygon is enforced only if FENCE_TYPE includes it (bit 4, polygon)."""
+        vertices = fence_vertices(polygon)
+        peer = self.link.peer(self.sysid)
+        items = fence_items(self.link.mav, self.sysid, peer.compid, vertices)
+        await self._upload(items, MAV.MAV_MISSION_TYPE_FENCE, "the fence upload")
+        await self._command(MAV.MAV_CMD_DO_FENCE_ENABLE, 1.0)
+
+    async def _upload(self, items: list[Any], mission_type: int, what: str) -> None:
+        """The mission protocol's upload: MISSION_COUNT, then each item the vehicle asks for with
+        MISSION_REQUEST_INT (ArduPilot may ask with MISSION_REQUEST: it gets MISSION_ITEM_INT too),
+        until MISSION_ACK. Without an answer within mission_timeout, the last message is sent again
+        (up to `retries` times); if the final MISSION_ACK is what never comes, the upload starts over
+        once. An INVALID_SEQUENCE ack is ArduPilot's answer to a duplicate item and does not end the
+        transfer; any other refusal raises CommandRejected, silence CommandTimeout."""
+        peer = self.link.peer(self.sysid)
+        count = self.link.mav.mission_count_encode(self.sysid, peer.compid, len(items), mission_type)
+        answers: asyncio.Queue = asyncio.Queue()
+        me = self.link.system_id
+
+        def listen(m: Any) -> None:
+            if (m.get_type() in _UPLOAD_ANSWERS and m.get_srcSystem() == self.sysid
+                    and m.mission_type == mission_type and m.target_system in (0, me)):
+                answers.put_nowait(m)
+
+        started = time.monotonic()
+        resend, sent, attempts, restarted = count, -1, 1, False
+        self.link.add_listener(listen)
+        try:
+            self.link.send(count)
+            while True:
+                try:
+                    m = await asyncio.wait_for(answers.get(), self.mission_timeout)
+                except asyncio.TimeoutError:
+                    waiting = (f"a request for item {sent + 1}" if sent < len(items) - 1
+                               else "MISSION_ACK after the last item")
+                    if attempts <= self.retries:
+                        attempts += 1
+                        log.info("%s: %s: no answer, sending again (waiting for %s)", self.name, what, waiting)
+                        self.link.send(resend)
+                        continue
+                    if sent == len(items) - 1 and not restarted:  # the final ack was lost: start over
+                        resend, sent, attempts, restarted = count, -1, 1, True
+                        self.link.send(count)
+                        continue
+                    raise CommandTimeout(f"{what} (waiting for {waiting})", self.name, attempts,
+                                         self.mission_timeout) from None
+                if m.get_type() != "MISSION_ACK":
+                    if not 0 <= m.seq < len(items):
+                        raise MavlinkError(f"{self.name}: {what}: the vehicle asked for item {m.seq} "
+                                           f"of {len(items)}")
+                    resend, sent, attempts = items[m.seq], max(sent, m.seq), 1
+                    self.link.send(resend)
+                elif m.type == MAV.MAV_MISSION_ACCEPTED and sent == len(items) - 1:
+                    return
+                elif m.type != MAV.MAV_MISSION_INVALID_SEQUENCE:
+                    entry = MAV.enums["MAV_MISSION_RESULT"].get(m.type)
+                    result = entry.name.removeprefix("MAV_MISSION_") if entry is not None else str(m.type)
+                    if m.type == MAV.MAV_MISSION_ACCEPTED:
+                        result = f"ACCEPTED after {sent + 1} of {len(items)} items"
+                    await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
+                    raise CommandRejected(what, self.name, result, peer.texts_since(started))
+        finally:
+            self.link.remove_listener(listen)
 
     async def close(self) -> None:
         if self._telemetry_task is not None:

@@ -8,6 +8,8 @@ Every PX4/MAVSDK quirk the controller depends on lives here:
 - Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`), and goto takes an AMSL
   altitude: home AMSL + the wanted height above home.
 - MAVSDK's Python binding exposes no MAVLink signing: sign at a router (mavlink-router) if needed.
+- A geofence goes up with MAVSDK's geofence plugin (the mission protocol, mission_type FENCE). PX4 has
+  no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from typing import Any
 from swarmctl.mavlink.codec import parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout
 from swarmctl.mavlink.network import cancel_tasks
-from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle
+from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 _mavsdk_log_installed = False
@@ -66,6 +68,7 @@ class PX4Vehicle(Vehicle):
         self._system: Any = None
         self.action: Any = None
         self.telemetry: Any = None
+        self.geofence: Any = None
         self._tasks: list[asyncio.Task] = []
         self._position: Position | None = None
         self._home: Home | None = None
@@ -237,6 +240,19 @@ class PX4Vehicle(Vehicle):
         # Hold stops a return or a landing; PX4 then accepts repositions (goto) in flight
         self.target = None
         await self.set_mode("HOLD")
+
+    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
+        """Upload polygon as PX4's inclusion geofence (MAVSDK geofence plugin). PX4 enforces it as its
+        GF_ACTION says (default Hold) and ignores repositions outside it."""
+        from mavsdk.asyncio.plugins.geofence import FenceType, GeofenceAsync, GeofenceData, Point, Polygon
+
+        vertices = fence_vertices(polygon)
+        if self._system is None:
+            raise MavlinkError(f"{self.name}: not connected, cannot upload a fence")
+        if self.geofence is None:
+            self.geofence = GeofenceAsync(self._system)
+        fence = Polygon([Point(lat, lon) for lat, lon in vertices], FenceType.INCLUSION)
+        await self._call("upload_geofence", self.geofence.upload_geofence, GeofenceData([fence], []))
 
     # --- state ----------------------------------------------------------------------------------------
 

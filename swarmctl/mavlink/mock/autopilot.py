@@ -4,7 +4,9 @@ It behaves like the real autopilot as far as a controller can see (checked again
 SITL log): HEARTBEAT type/autopilot/base_mode/custom_mode, pre-arm checks that fail for the first
 seconds (FAILED + a "PreArm:" STATUSTEXT), takeoff only when armed in GUIDED, COMMAND_ACK results,
 SET_MESSAGE_INTERVAL (a fresh ArduPilot sends only heartbeats), simple kinematics, a draining battery,
-a GCS failsafe, signing, and faults injected from tests.
+a GCS failsafe, signing, faults injected from tests, and a geofence (uploaded with the mission
+protocol, see fence.py) that it enforces: a position target outside it is refused, as ArduCopter's
+GUIDED mode and PX4's reposition refuse one.
 
 Time: physics (speeds, climb, battery, the "not ready" period) runs `speedup` times faster than the
 wall clock; link timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations)
@@ -34,6 +36,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.mavlink.codec import (COPTER_MODE_NAMES, COPTER_MODES, PX4_MODES, distance_m,
                                     from_deg_e7, ne_m, offset_m, px4_decode, px4_encode, px4_mode_name,
                                     to_deg_e7)
+from swarmctl.mavlink.mock.fence import FENCE, MockFence
 from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
 
 MAV = mavlink2
@@ -57,6 +60,7 @@ _STREAMABLE = {MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, MAV.MAVLINK_MSG_ID_HOME_P
 _PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station touches
     "MIS_TAKEOFF_ALT": 2.5, "MPC_XY_CRUISE": 5.0, "RTL_RETURN_ALT": 30.0, "NAV_DLL_ACT": 2.0,
     "COM_OF_LOSS_T": 1.0, "SYS_AUTOSTART": 4001.0,
+    "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
 }
 _COPTER_ARMABLE = {"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
 
@@ -83,6 +87,9 @@ class MockState:
     battery: float
     ready: bool
     gcs_failsafe: bool
+    fence: tuple[tuple[tuple[float, float], ...], ...] = ()  # stored inclusion polygons, (lat, lon)
+    fence_enabled: bool = False  # the fence is enforced
+    fence_refused: int = 0  # position targets refused because they lie outside it
 
 
 class MockAutopilot:
@@ -122,11 +129,13 @@ class MockAutopilot:
         self._glitch: tuple[float, float, float] | None = None  # north, east, until (wall)
         self.forced_results: dict[int, int] = {}  # command -> MAV_RESULT to answer with
         self._drop_commands: dict[int, int | None] = {}  # command -> how many to ignore (None: all)
+        self._drop_sent: dict[str, int | None] = {}  # message type -> how many not to send (None: all)
         # observation for tests
         # the latest messages addressed to us, (type, src sysid, command or 0), and the answers given
         self.received: deque[tuple[str, int, int]] = deque(maxlen=10_000)
         self.commands: deque[tuple[int, int]] = deque(maxlen=10_000)  # (command, MAV_RESULT)
         self.ignored = 0  # messages seen that were addressed to another system
+        self.fence = MockFence(self)  # made here, not at boot: the stored fence survives reboots
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -230,6 +239,14 @@ class MockAutopilot:
         """Silently ignore the next `count` COMMAND_LONG/INT of this id (None: all of them)."""
         self._drop_commands[command] = count
 
+    def drop_sent(self, mtype: str, count: int | None = 1) -> None:
+        """Do not send the next `count` messages of this type, e.g. "MISSION_ACK" (None: none of them;
+        0: send them again)."""
+        if count == 0:
+            self._drop_sent.pop(mtype, None)
+        else:
+            self._drop_sent[mtype] = count
+
     def force_result(self, command: int, result: int | None) -> None:
         """Answer this command with the given MAV_RESULT without acting on it (None: normal)."""
         if result is None:
@@ -247,8 +264,11 @@ class MockAutopilot:
 
     def state(self) -> MockState:
         with self._lock:
+            f = self.fence
             return MockState(self.lat, self.lon, self.rel_alt, self.armed, self.mode_name,
-                             self.battery, self.ready, self.gcs_failsafe)
+                             self.battery, self.ready, self.gcs_failsafe,
+                             fence=tuple(tuple(p) for p in f.polygons), fence_enabled=f.active,
+                             fence_refused=f.refused)
 
     def wait_for(self, condition: Callable[["MockAutopilot"], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
@@ -309,6 +329,14 @@ class MockAutopilot:
     def send_message(self, msg: Any) -> None:
         """Pack, sign and deliver one message (subject to the loss/latency/blackout faults)."""
         if self.mav is None:
+            return
+        mtype = msg.get_type()
+        if mtype in self._drop_sent:
+            left = self._drop_sent[mtype]
+            if left is None or left > 1:
+                self._drop_sent[mtype] = None if left is None else left - 1
+            else:
+                del self._drop_sent[mtype]
             return
         now = time.monotonic()
         self.mav.send(msg)
@@ -449,6 +477,7 @@ class MockAutopilot:
 
     def _step(self, dt: float, now: float) -> None:
         self.sim_time += dt
+        self.fence.tick(now)
         if not self.ready and self.sim_time >= self.ready_after:
             self.ready = self.home_set = True
             if self.personality == "ardupilot":
@@ -479,11 +508,32 @@ class MockAutopilot:
                 self.custom_mode = px4_encode(*PX4_MODES["HOLD"])
         else:
             self.vel = (0.0, 0.0, 0.0)
+        self._fence_breach()
         if mode in ("LAND", "RTL") and self.rel_alt <= 0.0 and self.vel[2] >= 0:
             self.armed = False  # landed: disarm, as both autopilots do
             self.target = None
             self.vel = (0.0, 0.0, 0.0)
             self.statustext("Disarming motors" if self.personality == "ardupilot" else "Disarmed")
+
+    def _fence_breach(self) -> None:
+        """Outside an enforced fence in flight: the breach action, once per breach. ArduPilot's
+        FENCE_ACTION default, RTL; PX4's GF_ACTION default, Hold (the mock does only these)."""
+        f = self.fence
+        if f.allows(self.lat, self.lon):
+            f.breached = False
+            return
+        if f.breached or self.rel_alt <= 0.05:
+            return
+        f.breached = True
+        f.breaches += 1
+        if self.mode_name in ("RTL", "LAND"):
+            return
+        if self.personality == "ardupilot":
+            self._set_mode_name("RTL")
+            self.statustext("Fence breached: RTL", MAV.MAV_SEVERITY_CRITICAL)
+        else:
+            self._set_mode_name("HOLD")
+            self.statustext("Geofence violated: holding", MAV.MAV_SEVERITY_CRITICAL)
 
     def _move(self, lat: float, lon: float, alt: float, dt: float) -> None:
         """Fly toward (lat, lon, alt): horizontal speed limit, climb and descent rates, exact arrival."""
@@ -555,7 +605,9 @@ class MockAutopilot:
             self._set_custom_mode(msg.custom_mode)
         elif mtype in ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET"):
             self._param(msg)
-        elif mtype in ("MISSION_REQUEST_LIST",):
+        elif mtype.startswith("MISSION_") and getattr(msg, "mission_type", None) == FENCE:
+            self.fence.handle(msg)
+        elif mtype in ("MISSION_REQUEST_LIST",):  # no mission and no rally points are kept
             self.send_message(self.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(),
                                                             0, getattr(msg, "mission_type", 0)))
         elif mtype == "MISSION_CLEAR_ALL":
@@ -646,6 +698,8 @@ class MockAutopilot:
             return self._set_mode_name("RTL")
         if command == R.MAV_CMD_DO_REPOSITION:
             return self._reposition(p, frame)
+        if command == R.MAV_CMD_DO_FENCE_ENABLE and self.personality == "ardupilot":
+            return self.fence.enable(p[0])  # (PX4 enforces an uploaded fence by its GF_ACTION)
         if command == R.MAV_CMD_DO_CHANGE_SPEED:
             if p[1] > 0:
                 self.speed = p[1]
@@ -717,6 +771,8 @@ class MockAutopilot:
         elif not self.ready:
             reason = "Need Position Estimate" if self.personality == "ardupilot" \
                 else "Global position required"
+        elif not self.fence.allows(self.lat, self.lon):
+            reason = "vehicle outside fence" if self.personality == "ardupilot" else "Geofence violation"
         elif self.personality == "ardupilot" and self.mode_name not in _COPTER_ARMABLE:
             self.statustext("Arm: Mode not armable", MAV.MAV_SEVERITY_CRITICAL)
             return refused
@@ -752,6 +808,14 @@ class MockAutopilot:
         lat = from_deg_e7(int(p[4])) if p[4] else self.lat
         lon = from_deg_e7(int(p[5])) if p[5] else self.lon
         alt = self._relative_alt(p[6], frame) if math.isfinite(p[6]) else self.rel_alt
+        if not self.fence.allows(lat, lon):
+            self.fence.refused += 1
+            if self.personality == "ardupilot":
+                return MAV.MAV_RESULT_FAILED  # ArduCopter: the guided destination is refused
+            # PX4: the commander acks, the navigator holds and says why
+            self._set_mode_name("HOLD")
+            self.statustext("Reposition is outside geofence", MAV.MAV_SEVERITY_CRITICAL)
+            return MAV.MAV_RESULT_ACCEPTED
         if p[0] > 0:
             self.speed = p[0]
         self._set_mode_name("HOLD" if self.personality == "px4" else "GUIDED")
@@ -770,15 +834,24 @@ class MockAutopilot:
         mode = self.mode_name
         if not self.armed or self.rel_alt <= 0.05 or mode not in ("GUIDED", "OFFBOARD"):
             return  # ArduCopter ignores position targets outside GUIDED; PX4 outside OFFBOARD
-        self.target = (from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int),
-                       self._relative_alt(msg.alt, msg.coordinate_frame))
+        self._fenced_target(from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int),
+                            self._relative_alt(msg.alt, msg.coordinate_frame))
+
+    def _fenced_target(self, lat: float, lon: float, alt: float) -> None:
+        """Take a position target, unless an enforced fence excludes it: then it is ignored and the
+        vehicle keeps its previous target (or holds), as ArduCopter's GUIDED mode refuses a
+        destination outside the fence (no ack exists for SET_POSITION_TARGET_*; it only logs it)."""
+        if not self.fence.allows(lat, lon):
+            self.fence.refused += 1
+            return
+        self.target = (lat, lon, alt)
 
     def _local_target(self, msg: Any) -> None:
         self.last_setpoint = time.monotonic()
         if msg.type_mask & 0b111 or self.mode_name not in ("GUIDED", "OFFBOARD") or not self.armed:
             return
         lat, lon = offset_m(self.home[0], self.home[1], msg.x, msg.y)
-        self.target = (lat, lon, -msg.z)
+        self._fenced_target(lat, lon, -msg.z)
 
     def _param(self, msg: Any) -> None:
         names = sorted(self.params)
