@@ -65,7 +65,7 @@ class Peer:
 
     def texts_since(self, started: float) -> str:
         """The STATUSTEXTs received since `started` (time.monotonic()), joined: why a vehicle refused."""
-        return "; ".join(t for (ts, _sev, t) in self.statustexts if ts >= started - 0.05)
+        return "; ".join(t for (ts, _sev, t) in self.statustexts if ts >= started)
 
 
 @dataclass
@@ -353,7 +353,7 @@ class MavlinkLink:
                         return ack
                     await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
                     raise CommandRejected(name, who, MAV_RESULT_NAMES.get(ack.result, str(ack.result)),
-                                          peer.texts_since(started))
+                                          peer.texts_since(started - 0.05))
                 log.info("%s: no ack to %s (attempt %d of %d)", who, name, attempt + 1, attempts)
             raise CommandTimeout(name, who, attempts, timeout)
 

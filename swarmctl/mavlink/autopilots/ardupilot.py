@@ -287,7 +287,12 @@ class ArduPilotVehicle(Vehicle):
                     result = entry.name.removeprefix("MAV_MISSION_") if entry is not None else str(m.type)
                     if m.type == MAV.MAV_MISSION_ACCEPTED:
                         result = f"ACCEPTED after {sent + 1} of {len(items)} items"
-                    await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
+                    if not peer.texts_since(started):  # a STATUSTEXT saying why may trail the ack
+                        try:
+                            await self.link.wait_message(lambda t: t.get_type() == "STATUSTEXT"
+                                                         and t.get_srcSystem() == self.sysid, 0.2)
+                        except asyncio.TimeoutError:
+                            pass
                     raise CommandRejected(what, self.name, result, peer.texts_since(started))
         finally:
             self.link.remove_listener(listen)
