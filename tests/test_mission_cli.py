@@ -153,3 +153,15 @@ def test_a_vehicle_may_name_its_detector_socket(tmp_path):
     path.write_text(path.read_text().replace("udp:127.0.0.1:14650", "tcp:x"))
     with pytest.raises(InputError, match=r"vehicles\[0\]\.detector"):
         load_mission(path)
+
+
+def test_a_mission_with_the_fence_on_says_so_before_it_flies(tmp_path, monkeypatch, capsys):
+    from swarmctl.mission.config import load_mission
+    from swarmctl.mission.service import plan_from_config
+
+    path = small_mission(tmp_path, fence="true")
+    assert plan_from_config(load_mission(path)).fence is True
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["fly", str(path)]) == 1
+    assert "fence: the area's boundary, uploaded to every vehicle before take-off" in capsys.readouterr().out
+    assert plan_from_config(load_mission(small_mission(tmp_path))).fence is False

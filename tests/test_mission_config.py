@@ -45,6 +45,17 @@ def test_a_good_mission_loads(tmp_path):
     assert m.mission_id == 9 and m.end_action == "land" and m.altitude == 40.0
     assert [v.name for v in m.vehicles] == ["alpha", "bravo"]
     assert m.vehicles[1].autopilot == "px4" and m.grid == (tmp_path / "grid.npz").resolve()
+    assert m.fence is False
+
+
+def test_fence_is_a_switch(tmp_path):
+    m = load_mission(write(tmp_path, GOOD.replace('id = 9', 'id = 9\nfence = true', 1)))
+    assert m.fence is True
+    with pytest.raises(InputError) as err:
+        load_mission(write(tmp_path, GOOD.replace('id = 9', 'id = 9\nfence = "yes"', 1)))
+    assert str(err.value) == (f"{tmp_path / 'm.toml'}: mission.fence must be true or false, not 'yes'; write "
+                              "fence = true to upload the search area's boundary to every vehicle as its "
+                              "geofence, or leave it out")
 
 
 @pytest.mark.parametrize("old, new, key", [
@@ -62,6 +73,7 @@ def test_a_good_mission_loads(tmp_path):
     ('id = 9', 'id = 70000', "mission.id"),
     ('id = 9', 'id = 9\ngcs = "udpin:0.0.0.0:14550"', "mission.gcs"),
     ('id = 9', 'id = 9\ngcs = "udpout:nowhere"', "mission.gcs"),
+    ('id = 9', 'id = 9\nfence = 1', "mission.fence"),
     ('connection = "udpin:127.0.0.1:14552"', 'connection = "carrier-pigeon:1"', "vehicles[1].connection"),
     ('[knowledge]', '[knowledge]\nfoo = 1', "knowledge.foo"),
 ])

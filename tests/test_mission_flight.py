@@ -222,3 +222,67 @@ def test_a_pilot_taking_over_is_left_alone(tmp_path):
     assert a.state == "override" and a.end_state == "pilot (LOITER)" and a.end_action is None
     assert still_flying  # swarmctl sent it nothing: no end action, no mode change
     assert [b.end_state for b in controller.agents[1:]] == ["landed at home"] * 2
+
+
+@pytest.mark.slow
+def test_with_the_fence_on_every_vehicle_takes_it_before_take_off_and_the_search_completes(tmp_path):
+    grid = small_grid()
+    with SimSwarm(grid, uavs=3, seed=4, speedup=30.0, autopilots=["ardupilot", "ardupilot", "px4"]) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0, fence=True)
+        controller, outcome = fly(plan, tmp_path)
+        states = [m.state() for m in swarm.mocks]
+    assert outcome == "complete"
+    fence = [(round(lat * 1e7), round(lon * 1e7)) for lat, lon in controller.fence]
+    for s in states:
+        assert [(round(lat * 1e7), round(lon * 1e7)) for lat, lon in s.fence[0]] == fence
+        assert s.fence_enabled and s.fence_refused == 0 and s.armed
+    ev = events(tmp_path)
+    assert ev[0]["event"] == "mission" and len(ev[0]["fence"]) == len(fence)
+    for name in ("uav1", "uav2", "uav3"):
+        mine = [e for e in ev if e.get("vehicle") == name and e["event"] in ("fence", "state")]
+        uploaded = next(i for i, e in enumerate(mine) if e["event"] == "fence")
+        took_off = next(i for i, e in enumerate(mine) if e.get("state") == "takeoff")
+        assert mine[uploaded]["uploaded"] is True and uploaded < took_off
+    assert not our_threads()
+
+
+@pytest.mark.slow
+def test_a_vehicle_that_refuses_the_fence_stays_on_the_ground_and_the_others_fly(tmp_path):
+    from pymavlink.dialects.v20 import ardupilotmega as MAV
+
+    grid = small_grid()
+    with SimSwarm(grid, uavs=2, seed=5, speedup=30.0) as swarm:
+        swarm.mocks[1].fence.max_items = 3  # too small for the grid's fence
+        plan = swarm.plan("frontier", end_action="land", time_limit=3.0, fence=True)
+        controller, outcome = fly(plan, tmp_path)
+        refused = swarm.mocks[1]
+        commands = {c for c, _ in refused.commands}
+        on_the_ground = refused.rel_alt == 0.0 and not refused.armed
+    assert outcome in ("partial", "time limit")
+    good, bad = controller.agents
+    assert good.end_state == "landed" and good.steps > 0
+    assert bad.state == "failed" and on_the_ground and MAV.MAV_CMD_COMPONENT_ARM_DISARM not in commands
+    assert bad.error.startswith("uav2: the fence upload was refused: NO_SPACE (")
+    assert "Only 3 items are supported" in bad.error  # the vehicle's STATUSTEXT
+    assert bad.error.endswith("; without its fence uav2 does not take off")
+    fence_events = [e for e in events(tmp_path) if e["event"] == "fence"]
+    assert {(e["vehicle"], e["uploaded"]) for e in fence_events} == {("uav1", True), ("uav2", False)}
+    assert not our_threads()
+
+
+@pytest.mark.slow
+def test_a_vehicle_launched_outside_the_fence_does_not_take_off(tmp_path):
+    import shapely
+
+    grid = small_grid()
+    # the area is the grid's east half only: the vehicles start at its south-west (cells (0, 0), (2, 0))
+    east = shapely.box(*grid.grid_to_metres(6, 0), *grid.grid_to_metres(10, 10))
+    grid.area_wkt = grid.projection.geometry_to_lonlat(east).wkt
+    with SimSwarm(grid, uavs=2, seed=6, speedup=30.0) as swarm:
+        plan = swarm.plan("frontier", end_action="land", time_limit=30.0, fence=True)
+        controller, outcome = fly(plan, tmp_path)
+        armed = [m.armed or m.rel_alt > 0 for m in swarm.mocks]
+    assert outcome == "failed" and not any(armed)
+    for a in controller.agents:
+        assert a.state == "failed" and "is outside the fence (the search area's boundary)" in a.error
+    assert all(not e["uploaded"] for e in events(tmp_path) if e["event"] == "fence")

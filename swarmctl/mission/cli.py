@@ -83,10 +83,13 @@ def view_options(func):
 @click.option("--gcs", default=None, metavar="udpout:HOST:PORT",
               help="Forward the mock vehicles' MAVLink to a ground station (QGroundControl: udpout:127.0.0.1:14550). "
                    "Default: the mission file's gcs, else none.")
+@click.option("--fence", is_flag=True,
+              help="Upload the area's boundary to every mock vehicle as its geofence before take-off "
+                   "(also on when the --mission file says fence = true).")
 @view_options
 def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mission_file: Path | None,
                  speedup: float, targets: int | None, end_action: str, time_limit: float, gcs: str | None,
-                 quiet: bool, no_live: bool) -> None:
+                 fence: bool, quiet: bool, no_live: bool) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
@@ -122,6 +125,7 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
         grid, grid_file = load_grid(cfg), cfg.grid
         settings = dict(altitude=float(cfg.altitude), mission_id=cfg.mission_id)
         gcs_to = gcs_to or gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs")
+        fence = fence or cfg.fence
     else:
         grid_file = _find(DEMO_GRID)
         if grid_file is None:
@@ -137,12 +141,14 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
     except ValueError as exc:
         raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
     with swarm:
-        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to)
+        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to,
+                          fence=fence)
         if mission_file is not None:
             plan.name, plan.mission_file = cfg.name, cfg.path
         if not quiet:
             click.echo(f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
-                       f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x -> {folder}", err=True)
+                       f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x"
+                       f"{', geofence on' if fence else ''} -> {folder}", err=True)
         code, summary = run_controller(
             plan, folder, LiveView(live=not no_live, quiet=quiet),
             extra_summary=lambda c: {"hidden_targets": swarm.targets.tolist(), "speedup": speedup, "seed": seed,

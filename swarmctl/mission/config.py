@@ -13,6 +13,7 @@
     end_action = "rtl"          # land | rtl | hover
     signing_key = "swarm.key"   # optional, 32-byte MAVLink 2 signing key
     gcs = "udpout:127.0.0.1:14550"   # optional: forward the vehicles' MAVLink to a ground station
+    fence = true                # optional (default false): upload the area's boundary to each vehicle as its geofence
 
     [knowledge]
     channel = "udpout:127.0.0.1:14600"   # where the agents exchange TUNNEL messages
@@ -40,7 +41,7 @@ AUTOPILOTS = ("ardupilot", "px4")
 OBSERVATION_WINDOW = 20  # F: the controller observes 20 x 20 windows, like the simulator
 
 _MISSION_KEYS = {"name", "id", "grid", "area", "buildings", "cell_size", "altitude", "policy", "step_period",
-                 "step_timeout", "time_limit", "end_action", "signing_key", "gcs"}
+                 "step_timeout", "time_limit", "end_action", "signing_key", "gcs", "fence"}
 _KNOWLEDGE_KEYS = {"channel", "digest_every"}
 _VEHICLE_KEYS = {"name", "connection", "sysid", "autopilot", "detector"}
 _TOP_KEYS = {"mission", "knowledge", "vehicles"}
@@ -75,6 +76,7 @@ class MissionConfig:
     knowledge_channel: str | None = None
     digest_every: int = 5
     gcs: str | None = None
+    fence: bool = False  # upload the area's boundary to every vehicle as its inclusion geofence
 
 
 def _fail(path: Path, key: str, problem: str, fix: str) -> InputError:
@@ -225,7 +227,17 @@ def load_mission(path: str | Path) -> MissionConfig:
         knowledge_channel=knowledge.get("channel"),
         digest_every=_number(path, knowledge, "digest_every", "knowledge.", 5, 1, integer=True),
         gcs=_gcs(path, mission),
+        fence=_flag(path, mission, "fence", where, False,
+                    "to upload the search area's boundary to every vehicle as its geofence"),
     )
+
+
+def _flag(path: Path, table: dict, key: str, where: str, default: bool, meaning: str) -> bool:
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        raise _fail(path, f"{where}{key}", f"must be true or false, not {value!r}",
+                    f"write {key} = true {meaning}, or leave it out")
+    return value
 
 
 def _gcs(path: Path, mission: dict) -> str | None:

@@ -37,6 +37,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from swarmctl.geo.fence import fence_contains, fence_polygon
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
@@ -96,6 +97,7 @@ class MissionPlan:
     detectors: dict[int, tuple[str, int]] = field(default_factory=dict)  # vehicle index -> local UDP socket
     only: list[int] | None = None  # onboard mode: the indices of the vehicles this process flies
     gcs: tuple[str, int] | None = None  # forward the vehicles' MAVLink to this ground station (UDP)
+    fence: bool = False  # upload the area's boundary to every vehicle as its inclusion geofence (preflight)
 
 
 class Agent:
@@ -188,6 +190,7 @@ class Controller:
         self.view = view
         self.grid = plan.grid
         self.guard = SafetyGuard(self.grid.blocked, plan.altitude)
+        self.fence = fence_polygon(self.grid) if plan.fence else None  # (lat, lon) vertices
         self.policy = FieldPolicy(plan.policy, seed=plan.seed)
         self.vehicle_factory = vehicle_factory
         self.agents: list[Agent] = []
@@ -221,7 +224,7 @@ class Controller:
         """Fly the mission; returns the outcome ("complete", "time limit", "failed", "interrupted")."""
         self.rec.event("mission", name=self.plan.name, policy=self.plan.policy, altitude=self.plan.altitude,
                        end_action=self.plan.end_action, grid=[self.grid.width, self.grid.height],
-                       vehicles=[v.name for v in self.plan.vehicles])
+                       vehicles=[v.name for v in self.plan.vehicles], fence=self.fence)
         try:
             await self._open()
             await self._start_all()
@@ -306,6 +309,8 @@ class Controller:
             start = self.grid.latlon_to_cell(home.lat, home.lon)
             if not self.grid.in_grid(*start):
                 raise MavlinkError(f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the grid")
+            if self.fence is not None:
+                await self._upload_fence(a, home)
             async with self._takeoff:
                 if self.stopping:
                     return
@@ -322,6 +327,24 @@ class Controller:
         except (MavlinkError, asyncio.TimeoutError) as exc:
             a.error = str(exc)
             self._state(a, FAILED, error=str(exc))
+
+    async def _upload_fence(self, a: Agent, home: Any) -> None:
+        """Preflight: the mission's fence to the vehicle, before it takes off. A vehicle whose home is
+        outside the fence, or that does not take the fence, does not fly (the others do)."""
+        fence = self.fence
+        assert fence is not None
+        if not fence_contains(fence, home.lat, home.lon):
+            why = (f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
+                   "boundary); launch it inside the area, or fly without fence")
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=why)
+            raise MavlinkError(why)
+        try:
+            await self._until_stopped(a.vehicle.upload_fence(fence))
+        except (MavlinkError, asyncio.TimeoutError) as exc:
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=str(exc))
+            raise MavlinkError(f"{exc}; without its fence {a.name} does not take off") from None
+        if not self.stopping:
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=True, vertices=len(fence))
 
     async def _until_stopped(self, coro: Any) -> Any:
         """Await coro unless stop() is called first (then coro is cancelled)."""

@@ -86,7 +86,7 @@ def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector
                        knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
                        digest_every=cfg.digest_every, seed=seed, grid_file=cfg.grid, mission_file=cfg.path,
                        only=keep if only else None, detectors=detectors,
-                       gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"))
+                       gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"), fence=cfg.fence)
     return plan
 
 
@@ -107,6 +107,8 @@ def describe(plan: MissionPlan) -> list[str]:
              f"grid {g.width} x {g.height} cells of {g.cell:g} m, {int(g.blocked.sum())} blocked"
              + (f", from {plan.grid_file}" if plan.grid_file else ""),
              f"altitude {plan.altitude:g} m above home, end action {plan.end_action}, time limit {plan.time_limit:g} s",
+             "fence: the area's boundary, uploaded to every vehicle before take-off" if plan.fence
+             else "fence: none (the vehicles' own fence settings apply)",
              f"knowledge channel udp:{plan.knowledge_peer[0]}:{plan.knowledge_peer[1]}"
              if plan.knowledge_peer else "knowledge channel: default"]
     for i, v in enumerate(plan.vehicles):
