@@ -10,7 +10,7 @@ arm within FENCE_MARGIN of it).
 
 An area of several parts becomes one polygon (their outline when the margin joins them, else their
 convex hull), because the two autopilots read several inclusion polygons differently (ArduPilot: the
-vehicle must be inside every one; PX4: inside any one).
+vehicle must be inside every one, unless FENCE_OPTIONS asks for their union; PX4: inside any one).
 
 Autopilots hold a few dozen fence points at most, so the polygon is simplified to at most
 `max_vertices` vertices, never cutting into the area grown by half the margin; when no simplification
@@ -26,7 +26,7 @@ from shapely.geometry.polygon import orient
 
 from swarmctl.errors import InputError
 
-MAX_FENCE_VERTICES = 60  # ArduPilot keeps about 70-100 fence points, depending on its storage
+MAX_FENCE_VERTICES = 60  # ArduPilot keeps 84 fence points on a Pixhawk (depends on the board's storage)
 
 
 def fence_polygon(grid, margin: float | None = None,

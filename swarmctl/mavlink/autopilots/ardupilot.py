@@ -228,7 +228,7 @@ class ArduPilotVehicle(Vehicle):
     async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
         """Upload polygon as the inclusion fence (mission protocol, mission_type FENCE), then switch the
         fence on with MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION; the
-        polygon is enforced only if FENCE_TYPE includes it (bit 4, polygon)."""
+        polygon is enforced only if FENCE_TYPE includes it (4: polygon)."""
         vertices = fence_vertices(polygon)
         peer = self.link.peer(self.sysid)
         items = fence_items(self.link.mav, self.sysid, peer.compid, vertices)

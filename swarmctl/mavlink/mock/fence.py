@@ -14,7 +14,8 @@ vertices (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION) are taken; other fence ite
 The stored fence survives reboots, like the autopilots' own storage. It is enforced when it is on:
 ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0 off); PX4 as soon as one is uploaded (its
 GF_ACTION parameter is not 0). With several inclusion polygons ArduPilot keeps the vehicle inside all
-of them and PX4 inside any one of them; points on the boundary count as inside.
+of them (its default FENCE_OPTIONS) and PX4 inside any one of them; points on the boundary count as
+inside.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.mavlink.mock.autopilot import MockAutopilot
 
 FENCE = MAV.MAV_MISSION_TYPE_FENCE
-MAX_ITEMS = 100  # the mock's storage; ArduPilot's depends on its board (about 70-100 points)
+MAX_ITEMS = 100  # the mock's storage; ArduPilot's depends on its board (84 points on a Pixhawk)
 REQUEST_AGAIN = 1.0  # wall seconds without the requested item before asking again
 UPLOAD_TIMEOUT = 5.0  # wall seconds without any item before the transfer is cancelled
 _GLOBAL_FRAMES = {MAV.MAV_FRAME_GLOBAL, MAV.MAV_FRAME_GLOBAL_INT, MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT,
