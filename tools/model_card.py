@@ -49,8 +49,10 @@ def main() -> None:
         + (f", initialised from {meta['init']}" if meta.get("init") else ""),
         "- hyperparameters: " + ", ".join(f"{k} = {v}" for k, v in train.items() if k != "extra"),
         "",
-        "Held-out evaluations during training (200 episodes, seed "
-        f"{train['eval_seed']}, the network alone with softmax tau {train['eval_tau']}):",
+        f"Held-out evaluations during training ({train['eval_episodes']} episodes of at most "
+        f"{train.get('eval_steps', 40)} steps, seed {train['eval_seed']}, "
+        + ("under the hover and mask rules (`--rules`)" if train.get("rules") else "the network alone")
+        + f" with softmax tau {train['eval_tau']}):",
         "",
         "| episodes | success | mean steps |",
         "| --- | --- | --- |",
