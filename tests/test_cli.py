@@ -64,3 +64,18 @@ def test_bad_input_is_one_clear_line_and_exit_2(args, needle):
     assert needle in err
     lines = [line for line in err.splitlines() if line.strip().startswith("swarmctl: error") or "Error" in line]
     assert len(lines) == 1
+
+
+def test_eval_plays_episodes_on_a_real_grid(tmp_path):
+    from pathlib import Path
+
+    grid = Path(__file__).resolve().parent.parent / "missions" / "chicago-loop" / "grid.npz"
+    out = tmp_path / "r.json"
+    code = main(["eval", "--grid", str(grid), "--scenario", "cluster", "--uavs", "2", "--targets", "4", "--steps", "60",
+                 "--episodes", "4", "--policy", "frontier", "--policy", "oracle", "--no-progress", "--json", str(out)])
+    assert code == 0
+    rows = json.loads(out.read_text())["results"]
+    assert rows[0]["scenario"]["grid"] == str(grid) and rows[0]["scenario"]["map_size"] == 50
+    assert rows[1]["success_rate"] == 1.0  # every target of these episodes lies well within 60 steps
+    code, _, err = run("eval", "--grid", str(tmp_path / "none.npz"), "--policy", "frontier")
+    assert code == 2 and "none.npz" in err and "Traceback" not in err

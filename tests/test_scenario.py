@@ -120,3 +120,42 @@ def test_impossible_requests_name_the_parameter(kwargs, name):
 def test_sparse_targets_that_cannot_fit_fail_after_retries():
     with pytest.raises(ScenarioError, match="--targets"):
         generate_scenario(WorldConfig(scenario="sparse", targets=9), 0, 0)
+
+
+def _random_map(seed: int, width: int, height: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    blocked = np.zeros((width, height), dtype=bool)
+    for _ in range(rng.integers(2, 8)):  # rectangles, some of them walls that split the map
+        x, y = rng.integers(0, width), rng.integers(0, height)
+        blocked[x : x + rng.integers(1, width // 2 + 2), y : y + rng.integers(1, 4)] = True
+    return blocked
+
+
+@settings(max_examples=150, deadline=None)
+@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.integers(12, 30), st.integers(12, 30),
+       st.integers(1, 4))
+def test_episodes_on_a_fixed_map_keep_it_and_draw_in_its_largest_free_region(seed, ep, scenario, w, h, uavs):
+    from swarmctl.world.paths import largest_free_region
+
+    blocked = _random_map(seed, w, h)
+    region = largest_free_region(blocked)
+    if region.sum() < 40:
+        return  # too little room for the paper's target spacing
+    cfg = WorldConfig(scenario=scenario, uavs=uavs, targets=4, d_sparse=2.0)
+    s = generate_scenario(cfg, seed, ep, blocked)
+    assert s.obstacles.shape == (w, h) and (s.obstacles == blocked).all()
+    assert region[s.targets[:, 0], s.targets[:, 1]].all() and region[s.starts[:, 0], s.starts[:, 1]].all()
+    assert len({tuple(c) for c in s.targets}) == 4 and len({tuple(c) for c in s.starts}) == uavs
+    assert not {tuple(c) for c in s.targets} & {tuple(c) for c in s.starts}
+    if scenario == "sparse":
+        assert pairwise(s.targets).min() > 2.0
+    again = generate_scenario(cfg, seed, ep, blocked)
+    assert (again.targets == s.targets).all() and (again.starts == s.starts).all()
+
+
+def test_episodes_without_a_fixed_map_are_the_ones_they_always_were():
+    """The fixed-map option leaves the paper's generator, and every published result, untouched."""
+    s = generate_scenario(WorldConfig(scenario="sparse", obstacles=0.1, uavs=3), 0, 0)
+    t = generate_scenario(WorldConfig(scenario="sparse", obstacles=0.1, uavs=3), 0, 0, None)
+    assert (s.targets == t.targets).all() and (s.obstacles == t.obstacles).all() and (s.starts == t.starts).all()
+

@@ -32,6 +32,7 @@ from swarmctl.geo.areas import Area
 from swarmctl.geo.buildings import BuildingRule, BuildingSet
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MAX_CELLS, METRES_PER_LEVEL
 from swarmctl.geo.projection import LocalProjection
+from swarmctl.world.paths import largest_free_region
 
 GRID_FORMAT = "swarmctl-grid"
 GRID_VERSION = 1
@@ -146,11 +147,7 @@ class GeoGrid:
 
     def largest_free_region(self) -> np.ndarray:
         """Bool mask [x, y] of the largest 4-connected region of free cells (all False if none)."""
-        labels, n = self.free_regions()
-        if n == 0:
-            return np.zeros_like(self.blocked)
-        sizes = np.bincount(labels.ravel())[1:]
-        return labels == (1 + int(np.argmax(sizes)))
+        return largest_free_region(self.blocked)
 
     # --- file ------------------------------------------------------------------------------
     def meta(self) -> dict:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -36,15 +37,31 @@ def format_table(results: list[dict]) -> str:
               help=f"Repeatable; all run on the same episodes. One of: {POLICY_HELP}.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
               help='Write {"results": [...]} with success_rate, mean_steps, steps_cdf, ...')
+@click.option("--grid", "grid_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Play every episode on this real area's grid (from `swarmctl plan`): its blocked cells are the "
+                   "obstacles, targets and starts are drawn by the scenario's rules in its largest free region; "
+                   "--map and --obstacles do not apply.")
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on a terminal.")
-def eval_command(steps, episodes, seed, policies, json_path, progress, **kwargs):
+def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress, **kwargs):
     """Evaluate policies: success rate, mean episode duration, duration CDF, against the oracle bound."""
     cfg = world_config(kwargs)
     require(steps >= 1, f"--steps {steps} must be >= 1")
     require(episodes >= 1, f"--episodes {episodes} must be >= 1")
-    results = evaluate(cfg, list(policies), episodes, seed, steps, progress=progress)
-    click.echo(f"{cfg.scenario}, M={cfg.map_size}, U={cfg.uavs}, K={cfg.targets}, eta={cfg.obstacles}, "
-               f"N={steps}, {episodes} episodes, seed {seed}, channel {cfg.channel}")
+    blocked, where = None, f"M={cfg.map_size}"
+    if grid_file is not None:
+        from swarmctl.geo.grid import GeoGrid
+
+        grid = GeoGrid.load(grid_file)
+        blocked = grid.blocked.copy()
+        cfg = replace(cfg, map_size=max(grid.width, grid.height), obstacles=0.0)
+        where = f"grid {grid_file} ({grid.width} x {grid.height}, {blocked.mean():.1%} blocked)"
+    results = evaluate(cfg, list(policies), episodes, seed, steps, progress=progress, blocked=blocked)
+    if grid_file is not None:
+        for r in results:
+            r["scenario"]["grid"] = str(grid_file)
+    click.echo(f"{cfg.scenario}, {where}, U={cfg.uavs}, K={cfg.targets}"
+               + (f", eta={cfg.obstacles}" if grid_file is None else "")
+               + f", N={steps}, {episodes} episodes, seed {seed}, channel {cfg.channel}")
     click.echo(format_table(results))
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)

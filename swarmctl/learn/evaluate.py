@@ -29,8 +29,9 @@ def _chunks(episodes: int, chunk: int):
 
 
 def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int, chunk: int = DEFAULT_CHUNK,
-               progress: bool = True) -> dict:
-    """Run one policy on episodes 0..E-1 of `seed`; returns the per-policy result record."""
+               progress: bool = True, blocked: np.ndarray | None = None) -> dict:
+    """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given); returns
+    the per-policy result record."""
     policy = make_policy(spec)
     durations, successes, oracle = [], [], []
     collisions = 0
@@ -38,7 +39,7 @@ def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int
     bar = tqdm(total=episodes, desc=f"{spec:>12}", unit="ep", disable=not progress, leave=False)
     for start, n in _chunks(episodes, chunk):
         env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=False)  # policies observe for themselves
-        env.reset(seed, range(start, start + n))
+        env.reset(seed, range(start, start + n), blocked)
         bound = OracleBound().durations(env)
         oracle.append(np.minimum(bound, steps))
         if isinstance(policy, OracleBound):
@@ -80,8 +81,8 @@ def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int
 
 
 def evaluate(cfg: WorldConfig, specs: list[str], episodes: int, seed: int, steps: int,
-             chunk: int = DEFAULT_CHUNK, progress: bool = True) -> list[dict]:
-    """Evaluate every policy on the same episodes."""
+             chunk: int = DEFAULT_CHUNK, progress: bool = True, blocked: np.ndarray | None = None) -> list[dict]:
+    """Evaluate every policy on the same episodes (on the fixed map `blocked` when given)."""
     for spec in specs:
         make_policy(spec)  # fail on a bad spec before any work
-    return [run_policy(cfg, s, episodes, seed, steps, chunk, progress) for s in specs]
+    return [run_policy(cfg, s, episodes, seed, steps, chunk, progress, blocked) for s in specs]

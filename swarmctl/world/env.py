@@ -61,14 +61,17 @@ class SearchEnv:
         self.last_observations: np.ndarray | None = None
 
     # ----- episode set-up -------------------------------------------------------------------
-    def reset(self, seed: int = 0, episodes: np.ndarray | range | None = None) -> np.ndarray | None:
-        """Start B episodes; episode indices default to 0..B-1. Returns observations (or None)."""
+    def reset(self, seed: int = 0, episodes: np.ndarray | range | None = None,
+              blocked: np.ndarray | None = None) -> np.ndarray | None:
+        """Start B episodes; episode indices default to 0..B-1. Returns observations (or None).
+        `blocked` (W, H) bool: every episode on this fixed map (a real area's grid), targets and
+        starts drawn on it (scenario.generate_scenario)."""
         if episodes is None:
             episodes = range(self.batch)
         episodes = list(episodes)
         if len(episodes) != self.batch:
             raise ScenarioError(f"reset got {len(episodes)} episode indices for a batch of {self.batch}")
-        scenarios = [generate_scenario(self.cfg, seed, int(i)) for i in episodes]
+        scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in episodes]
         return self.reset_to(scenarios, seed=seed + 7_919 * (episodes[0] + 1))
 
     def reset_to(self, scenarios: list[Scenario], seed: int = 0) -> np.ndarray | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import ndimage
 
 UNREACHABLE = np.iinfo(np.int32).max // 2
 
@@ -50,3 +51,12 @@ def step_towards(dist_to_goal: np.ndarray, pos: np.ndarray, rng: np.random.Gener
     ties = (d == best) & np.isfinite(d)
     ties[~np.isfinite(best[:, 0]), 0] = True  # no path: stay
     return np.argmax(ties * rng.random(ties.shape), axis=1)
+
+
+def largest_free_region(blocked: np.ndarray) -> np.ndarray:
+    """Bool mask [x, y] of the largest 4-connected region of cells not `blocked` (all False if none)."""
+    labels, n = ndimage.label(~blocked)
+    if n == 0:
+        return np.zeros_like(blocked, dtype=bool)
+    sizes = np.bincount(labels.ravel())[1:]
+    return labels == (1 + int(np.argmax(sizes)))

@@ -13,6 +13,7 @@ import numpy as np
 
 from swarmctl.errors import ScenarioError
 from swarmctl.world.config import WorldConfig
+from swarmctl.world.paths import largest_free_region
 
 MAX_ATTEMPTS = 100
 MAX_OBSTACLE_FAILURES = 50
@@ -37,8 +38,8 @@ def episode_rng(seed: int, episode: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(episode), 0x5CE7]))
 
 
-def _cell_coords(m: int) -> np.ndarray:
-    xs, ys = np.meshgrid(np.arange(m), np.arange(m), indexing="ij")
+def _cell_coords(width: int, height: int) -> np.ndarray:
+    xs, ys = np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
     return np.stack([xs.ravel(), ys.ravel()], axis=1)
 
 
@@ -49,11 +50,14 @@ def _draw(rng: np.random.Generator, weights: np.ndarray) -> int:
     return int(rng.choice(weights.size, p=weights / total))
 
 
-def place_targets(cfg: WorldConfig, rng: np.random.Generator) -> np.ndarray:
-    """Targets by the paper's sequential rules; returns (K, 2) cells."""
-    m, k = cfg.map_size, cfg.targets
-    cells = _cell_coords(m).astype(np.float64)
+def place_targets(cfg: WorldConfig, rng: np.random.Generator, allowed: np.ndarray | None = None) -> np.ndarray:
+    """Targets by the paper's sequential rules; returns (K, 2) cells. `allowed` (W, H) bool, for a
+    fixed map: targets only there (its shape is the map's); None: anywhere on the M x M map."""
+    k = cfg.targets
+    width, height = allowed.shape if allowed is not None else (cfg.map_size, cfg.map_size)
+    cells = _cell_coords(width, height).astype(np.float64)
     n = cells.shape[0]
+    where = allowed.ravel().astype(np.float64) if allowed is not None else 1.0
     min_d2 = np.full(n, np.inf)  # squared distance from each cell to the nearest placed target
     chosen: list[int] = []
 
@@ -62,20 +66,20 @@ def place_targets(cfg: WorldConfig, rng: np.random.Generator) -> np.ndarray:
         np.minimum(min_d2, ((cells - cells[index]) ** 2).sum(axis=1), out=min_d2)
 
     if cfg.scenario == "sparse":
-        add(int(rng.integers(n)))
+        add(int(rng.integers(n)) if allowed is None else _draw(rng, where))
         dist0 = np.sqrt(((cells - cells[chosen[0]]) ** 2).sum(axis=1))
         for _ in range(1, k):
-            add(_draw(rng, np.where(min_d2 > cfg.d_sparse**2, dist0, 0.0)))
+            add(_draw(rng, np.where(min_d2 > cfg.d_sparse**2, dist0, 0.0) * where))
     else:
         # cluster and multi-cluster: K split as evenly as possible over C clusters
         sizes = [k // cfg.clusters + (1 if c < k % cfg.clusters else 0) for c in range(cfg.clusters)]
         for size in sizes:
-            seed_weights = np.where(min_d2 > 1.0, 1.0, 0.0)
+            seed_weights = np.where(min_d2 > 1.0, 1.0, 0.0) * where
             seed_cell = _draw(rng, seed_weights)
             add(seed_cell)
             inv = 1.0 / (1.0 + np.sqrt(((cells - cells[seed_cell]) ** 2).sum(axis=1)))
             for _ in range(1, size):
-                add(_draw(rng, np.where(min_d2 > 1.0, inv, 0.0)))
+                add(_draw(rng, np.where(min_d2 > 1.0, inv, 0.0) * where))
     return cells[chosen].astype(np.int64)
 
 
@@ -150,11 +154,20 @@ def place_starts(cfg: WorldConfig, obstacles: np.ndarray, targets: np.ndarray, r
     return np.stack(np.unravel_index(picked, free.shape), axis=1).astype(np.int64)
 
 
-def generate_scenario(cfg: WorldConfig, seed: int, episode: int) -> Scenario:
-    """Episode `episode` of the run with `seed`: targets, then obstacles, then start cells."""
+def generate_scenario(cfg: WorldConfig, seed: int, episode: int, blocked: np.ndarray | None = None) -> Scenario:
+    """Episode `episode` of the run with `seed`: targets, then obstacles, then start cells.
+
+    `blocked` (W, H) bool is a fixed map (a real area's grid): its blocked cells are the obstacles
+    (cfg.map_size and cfg.obstacles do not apply), and targets and starts are drawn by the same
+    rules among the cells of its largest connected free region, so every target can be reached."""
     rng = episode_rng(seed, episode)
+    region = largest_free_region(blocked) if blocked is not None else None
     for _ in range(MAX_ATTEMPTS):
         try:
+            if region is not None:
+                targets = place_targets(cfg, rng, allowed=region)
+                starts = place_starts(cfg, ~region, targets, rng)
+                return Scenario(targets=targets, obstacles=blocked.copy(), starts=starts, obstacle_rects=[])
             targets = place_targets(cfg, rng)
             obstacles, rects = place_obstacles(cfg, targets, rng)
             starts = place_starts(cfg, obstacles, targets, rng)
