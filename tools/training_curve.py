@@ -13,8 +13,8 @@ The paper trains a separate model per count, each with its exploration annealed 
 That costs 2 x seeds x (sum of the counts) episodes, 50,000 for the full figure: 15-18 core-hours
 here. Snapshots of one run per seed cost 2 x seeds x (largest count), 30,000 episodes. The defaults
 (`--parallel 10 --updates-per-step 1.25`: one gradient step per 16 vehicle transitions, 37,500 per
-3000 episodes, the recipe of models/cluster-2uav.pt's first stage) take about 50 min per run on one
-core, 8 core-hours for the figure. A quarter of those gradient steps (`--updates-per-step 0.25`, 14 min
+3000 episodes, the recipe of models/cluster-2uav.pt's first stage) took 55-57 min per run on one
+core with a second run beside it: about 9 core-hours for the figure. A fifth of those gradient steps (`--updates-per-step 0.25`, 14 min
 per run) learns nothing in 3000 episodes: success 0.01-0.02 for both rules, seed 0. A snapshot taken
 early in a run was trained while exploration was still high, which the paper's protocol avoids.
 `--map 6 --targets 2 --episodes 20 40` gives a quick smoke run.
@@ -53,7 +53,7 @@ def plot(results: dict, out: Path) -> None:
         s = np.array(runs)
         mean = s.mean(0)
         ax.errorbar(counts, mean, yerr=[mean - s.min(0), s.max(0) - mean], fmt=style, capsize=3,
-                    label=f"DDQL {exploration} ({len(runs)} seeds, min/max)")
+                    label=f"DDQL {exploration} ({len(runs)} seed{'s' if len(runs) != 1 else ''}, min/max)")
     ax.axhline(results["la4_success"], color="k", lw=1, label="LA(4)")
     w = results["world"]
     ax.set_xlabel("training episodes")
