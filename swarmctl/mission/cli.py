@@ -75,8 +75,9 @@ def view_options(func):
                    "if that file exists and takes 20 x 20 observations, else frontier.")
 @click.option("--mission", "mission_file", type=click.Path(path_type=Path), default=None,
               help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].")
-@click.option("--speedup", type=float, default=20.0, show_default=True,
-              help="Mock physics runs this many times faster than the wall clock.")
+@click.option("--speedup", type=float, default=10.0, show_default=True,
+              help="Mock physics runs this many times faster than the wall clock. The controller's own time per "
+                   "round is multiplied too, in mock time: higher values cost the mock batteries more per step.")
 @click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
 @click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
 @click.option("--time-limit", type=float, default=300.0, show_default=True, help="Search time limit, seconds.")
