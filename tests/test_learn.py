@@ -1,6 +1,7 @@
 """The Q-network, checkpoints, exploration, and small seconds-long training runs."""
 
 import csv
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -216,3 +217,10 @@ def test_training_under_the_rules_hovers_and_never_leaves_the_map(monkeypatch, t
         assert (c["actions"][c["hover"]] == STAY).all()
         hovered += c["hover"].sum()
     assert hovered > 0  # the tiny map's vehicles do reach targets
+
+
+def test_snapshots_between_rounds_are_refused():
+    from dataclasses import replace
+
+    with pytest.raises(ValueError, match="multiple of"):
+        train(TINY_WORLD, replace(tiny_config(96), snapshots=(30,)), seed=1, out=Path("/nonexistent/m.pt"))

@@ -159,3 +159,10 @@ def test_episodes_without_a_fixed_map_are_the_ones_they_always_were():
     t = generate_scenario(WorldConfig(scenario="sparse", obstacles=0.1, uavs=3), 0, 0, None)
     assert (s.targets == t.targets).all() and (s.obstacles == t.obstacles).all() and (s.starts == t.starts).all()
 
+
+
+def test_a_fixed_map_too_small_for_the_episode_fails_naming_the_region():
+    blocked = np.ones((10, 10), dtype=bool)
+    blocked[:3, :3] = False  # 9 free cells
+    with pytest.raises(ScenarioError, match="largest free region \\(9 cells\\)"):
+        generate_scenario(WorldConfig(scenario="sparse", uavs=2, targets=4), 0, 0, blocked)

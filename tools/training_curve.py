@@ -112,7 +112,10 @@ def main() -> None:
     if any(n % args.parallel for n in counts):
         ap.error(f"--parallel {args.parallel} must divide every count in --episodes {counts}")
     results = json.loads(json_path.read_text()) if json_path.exists() else {}
-    if results.get("episodes") != counts or results.get("world") != world.as_dict():
+    if results and (results.get("episodes") != counts or results.get("world") != world.as_dict()):
+        ap.error(f"{json_path} holds runs of another setting (episodes {results.get('episodes')}); "
+                 "use another --out, or the same --episodes and world options to add seeds to it")
+    if not results:
         la = evaluate(world, ["la:4"], args.eval_episodes, seed=0, steps=args.steps, progress=False)[0]
         results = {"episodes": counts, "world": world.as_dict(), "steps": args.steps, "eval_seed": 0,
                    "eval_episodes": args.eval_episodes, "la4_success": la["success_rate"], "runs": {},

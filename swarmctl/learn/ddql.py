@@ -24,8 +24,7 @@ from tqdm import tqdm
 
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
-from swarmctl.policy.base import hovering
-from swarmctl.policy.ddql import allowed_moves, softmax_sample
+from swarmctl.policy.ddql import env_allowed_moves, softmax_sample
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -89,7 +88,7 @@ def explore(q: np.ndarray, cfg: TrainConfig, value: float, rng: np.random.Genera
 
 def rule_mask(env: SearchEnv) -> np.ndarray:
     """(B * U, 5) bool: the moves the deployment rules allow (policy.ddql: hover and mask)."""
-    return allowed_moves(env.pos, hovering(env), env.known_obstacles()).reshape(-1, 5)
+    return env_allowed_moves(env).reshape(-1, 5)
 
 
 def git_commit() -> str:
@@ -138,6 +137,10 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
     """Train the shared Q-network; writes the checkpoint to `out` (and the one of the best held-out
     evaluation to best_path(out)) and returns its metadata."""
     start_time = time.time()
+    unreachable = [n for n in cfg.snapshots if n != cfg.episodes and (n % cfg.parallel_envs or n > cfg.episodes)]
+    if unreachable:
+        raise ValueError(f"snapshots {unreachable}: a snapshot is taken between rounds of {cfg.parallel_envs} "
+                         f"parallel episodes, so it must be a multiple of that, at most {cfg.episodes}")
     torch.manual_seed(seed)
     torch.set_num_threads(cfg.threads)
     dev = torch.device(device)

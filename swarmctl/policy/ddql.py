@@ -71,6 +71,12 @@ def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, rng: np.random
     return softmax_sample(q.reshape(b * u, a), tau, rng).reshape(b, u)
 
 
+def env_allowed_moves(env: SearchEnv, hover: bool = True, mask: bool = True) -> np.ndarray:
+    """(B, U, 5) bool: the moves the decision rules allow in a simulated world (allowed_moves with the
+    world's hovering vehicles and each vehicle's known obstacles)."""
+    return allowed_moves(env.pos, hovering(env) if hover else None, env.known_obstacles() if mask else None)
+
+
 class DDQLPolicy:
     def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
                  hover: bool = True, mask: bool = True):
@@ -96,8 +102,7 @@ class DDQLPolicy:
 
     def act(self, env: SearchEnv) -> np.ndarray:
         obs = env.observe(self.remove_taken)  # its own observation: the world's setting may differ
-        allowed = allowed_moves(env.pos, hovering(env) if self.hover else None,
-                                env.known_obstacles() if self.mask else None)
+        allowed = env_allowed_moves(env, self.hover, self.mask)
         return choose(self.q_values(obs), allowed, self.tau, self.rng)
 
 

@@ -174,6 +174,12 @@ def generate_scenario(cfg: WorldConfig, seed: int, episode: int, blocked: np.nda
             return Scenario(targets=targets, obstacles=obstacles, starts=starts, obstacle_rects=rects)
         except _DrawFailed:
             continue
+    if region is not None:
+        raise ScenarioError(
+            f"no valid {cfg.scenario} scenario after {MAX_ATTEMPTS} draws on the grid: its largest free region "
+            f"({int(region.sum())} cells) cannot hold K={cfg.targets} targets by the scenario's spacing and "
+            f"U={cfg.uavs} starts; lower --targets or --uavs"
+        )
     what = "--targets" if cfg.scenario == "sparse" else "--obstacles"
     raise ScenarioError(
         f"no valid {cfg.scenario} scenario after {MAX_ATTEMPTS} draws (M={cfg.map_size}, K={cfg.targets}, "
