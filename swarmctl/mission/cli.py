@@ -19,7 +19,8 @@ from swarmctl.mission.config import END_ACTIONS
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
 # The demo flies a real map with buildings and 3 vehicles: the model for that is the one trained with
-# obstacles and 3 UAVs. models/cluster-2uav.pt (20 x 20, no obstacles) finds 1 of 3 targets there.
+# obstacles and 3 UAVs. models/cluster-2uav.pt (20 x 20, no obstacles) collides four times per episode
+# there (docs/RESULTS.md, the Chicago Loop grid).
 DEMO_MODEL = Path("models/obstacles-3uav.pt")
 
 
