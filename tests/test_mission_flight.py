@@ -247,6 +247,36 @@ def test_with_the_fence_on_every_vehicle_takes_it_before_take_off_and_the_search
 
 
 @pytest.mark.slow
+def test_a_vehicle_rebooted_mid_mission_gets_its_fence_on_again_before_it_rejoins(tmp_path):
+    """ArduPilot does not save DO_FENCE_ENABLE: a rebooted vehicle keeps its stored fence but has it off."""
+    grid = small_grid(16, 16)
+    far_corner = [(13, 14), (15, 12), (14, 15)]
+    with SimSwarm(grid, uavs=3, seed=6, speedup=30.0, targets=far_corner) as swarm:
+        plan = swarm.plan("frontier", end_action="hover", time_limit=120.0, step_period=0.2, fence=True)
+        victim = swarm.mocks[2]
+        fence_off = []
+
+        async def reboot(controller):
+            await wait_for(lambda: controller.step >= 1, 60, "the search to start")
+            victim.reboot(600.0)
+            await wait_for(lambda: controller.agents[2].state == "lost", 30, "the link loss to be seen")
+            victim.blackout(0.0)  # it boots now: disarmed, on the ground
+            await wait_for(lambda: not victim.armed and victim.state().fence, 30, "the vehicle to boot")
+            fence_off.append(not victim.state().fence_enabled)
+
+        controller, outcome = fly(plan, tmp_path, during=reboot)
+        state = victim.state()
+    assert fence_off == [True]  # the reboot switched it off
+    assert outcome == "complete" and state.fence_enabled and state.armed
+    mine = [e for e in events(tmp_path) if e.get("vehicle") == "uav3" and e["event"] in ("fence", "state")]
+    kinds = [e.get("state", "fence") for e in mine]
+    rejoin = kinds.index("rejoin")
+    assert kinds.count("fence") == 2 and kinds.index("fence") < kinds.index("takeoff")
+    assert kinds[rejoin:rejoin + 3] == ["rejoin", "fence", "search"]
+    assert all(e["uploaded"] for e in mine if e["event"] == "fence")
+
+
+@pytest.mark.slow
 def test_a_vehicle_that_refuses_the_fence_stays_on_the_ground_and_the_others_fly(tmp_path):
     from pymavlink.dialects.v20 import ardupilotmega as MAV
 

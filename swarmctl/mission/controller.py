@@ -329,8 +329,9 @@ class Controller:
             self._state(a, FAILED, error=str(exc))
 
     async def _upload_fence(self, a: Agent, home: Any) -> None:
-        """Preflight: the mission's fence to the vehicle, before it takes off. A vehicle whose home is
-        outside the fence, or that does not take the fence, does not fly (the others do)."""
+        """The mission's fence to the vehicle, before it takes off (preflight, and again before a vehicle
+        on the ground rejoins). A vehicle whose home is outside the fence, or that does not take the
+        fence, does not fly (the others do)."""
         fence = self.fence
         assert fence is not None
         if not fence_contains(fence, home.lat, home.lon):
@@ -549,6 +550,11 @@ class Controller:
                 # still in the air, perhaps returning or landing on its failsafe: take it back there
                 await a.vehicle.resume()
             else:
+                if self.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
+                    await self._until_stopped(a.vehicle.wait_ready(plan.ready_timeout))
+                    if a.vehicle.home is None:
+                        raise MavlinkError(f"{a.name}: no home position")
+                    await self._upload_fence(a, a.vehicle.home)
                 async with self._takeoff:
                     await a.vehicle.arm_and_takeoff(plan.altitude, plan.takeoff_timeout)
             pos = a.vehicle.position

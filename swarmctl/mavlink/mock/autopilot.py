@@ -166,6 +166,9 @@ class MockAutopilot:
         self.gcs_failsafe = False
         self.last_setpoint = -1e9
         self.params = dict(_PX4_PARAMS)
+        # ArduPilot's DO_FENCE_ENABLE is not saved: after a reboot the stored fence is off until enabled
+        # again (FENCE_ENABLE 0). PX4 enforces a stored fence from boot (GF_ACTION).
+        self.fence.enabled = False
         if self.personality == "px4":
             self.intervals = {k: v for k, v in _PX4_DEFAULT_STREAMS.items()}
         else:
