@@ -13,12 +13,12 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as MAV
 
 from swarmctl.geo.areas import Area
-from swarmctl.geo.fence import fence_contains, fence_polygon
+from swarmctl.geo.fence import farthest_metres, fence_contains, fence_polygon
 from swarmctl.geo.grid import GeoGrid, make_grid
 from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle, fence_items
 from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
 from swarmctl.mavlink.codec import offset_m
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
 from swarmctl.mavlink.mock.fence import fence_polygons
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.mavlink.vehicle import fence_vertices
@@ -150,6 +150,7 @@ def test_a_vehicle_found_outside_its_fence_in_flight_returns_home():
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")) as (m,):
+                m.params["FENCE_RADIUS"] = 500.0  # the circle round home holds the polygon (424 m away)
                 v = await ardupilot(link)
                 await v.arm_and_takeoff(10.0, timeout=20)
                 await v.upload_fence(away)  # the vehicle is not inside this one
@@ -199,6 +200,45 @@ def test_a_fence_too_big_for_the_vehicle_is_refused_with_its_reason():
     assert message.startswith("vehicle 1: the fence upload was refused: NO_SPACE (")
     assert "Only 3 items are supported" in message  # the vehicle's STATUSTEXT
     assert state.fence == () and not state.fence_enabled
+
+
+# a 800 m square round home: its corners are 565 m away, beyond ArduPilot's default 300 m circle fence
+BIG = [offset_m(HOME[0], HOME[1], n, e) for n, e in [(-400, -400), (-400, 400), (400, 400), (400, -400)]]
+
+
+@pytest.mark.parametrize("params,needle", [
+    ({}, "FENCE_RADIUS is 300 m but the fence reaches 565 m from home, so the circle fence would cut the "
+         "search area; set FENCE_RADIUS to at least 570 or take the circle (2) out of FENCE_TYPE (now 7)"),
+    ({"FENCE_TYPE": 3.0}, "FENCE_TYPE is 3, without the polygon (4): the vehicle would not enforce the "
+                          "uploaded fence; set FENCE_TYPE to 7"),
+    ({"FENCE_TYPE": 5.0}, None),  # no circle
+    ({"FENCE_RADIUS": 570.0}, None),
+])
+def test_the_vehicles_own_fence_settings_are_checked_before_the_upload(params, needle):
+    assert farthest_metres(BIG, HOME[0], HOME[1]) == pytest.approx(565.7, abs=1.5)  # offset_m is a flat-earth step
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")) as (m,):
+                m.params.update(params)
+                v = await ardupilot(link)
+                await v.wait_ready(10)
+                try:
+                    if needle is None:
+                        await v.upload_fence(BIG)
+                        return None, m.state()
+                    with pytest.raises(MavlinkError) as err:
+                        await v.upload_fence(BIG)
+                    return str(err.value), m.state()
+                finally:
+                    await v.close()
+
+    message, state = run(scenario())
+    if needle is None:
+        assert e7(state.fence[0]) == e7(BIG) and state.fence_enabled
+    else:
+        assert message == f"vehicle 1: {needle}"
+        assert state.fence == () and not state.fence_enabled  # nothing was uploaded
 
 
 def test_a_silent_vehicle_ends_the_upload_with_a_timeout():

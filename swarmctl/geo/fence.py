@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from pyproj import Geod
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
@@ -50,6 +51,14 @@ def fence_polygon(grid, margin: float | None = None,
 def fence_contains(polygon: list[tuple[float, float]], lat: float, lon: float) -> bool:
     """Whether (lat, lon) lies inside (or on) the fence polygon given as (lat, lon) vertices."""
     return bool(shapely.intersects_xy(Polygon([(b, a) for a, b in polygon]), lon, lat))
+
+
+def farthest_metres(polygon: list[tuple[float, float]], lat: float, lon: float) -> float:
+    """The distance in metres (WGS84 geodesic) from (lat, lon) to the farthest point of the polygon:
+    one of its vertices. How far a circle fence round home must reach to hold the whole polygon."""
+    lats, lons = np.array(polygon, dtype=float).T
+    _, _, dist = Geod(ellps="WGS84").inv(np.full_like(lons, lon), np.full_like(lats, lat), lons, lats)
+    return float(np.max(dist))
 
 
 def _area_metres(grid):

@@ -357,6 +357,28 @@ class MavlinkLink:
                 log.info("%s: no ack to %s (attempt %d of %d)", who, name, attempt + 1, attempts)
             raise CommandTimeout(name, who, attempts, timeout)
 
+    async def read_param(self, sysid: int, name: str, *, timeout: float = 1.0, retries: int = 3,
+                         vehicle: str | None = None) -> float:
+        """A parameter's value: PARAM_REQUEST_READ by name, answered by PARAM_VALUE, resent on timeout.
+        CommandTimeout when no answer came after 1 + retries attempts."""
+        who = vehicle or f"vehicle {sysid}"
+        peer = self.peer(sysid)
+        attempts = 1 + max(0, retries)
+
+        def answer(m: Any) -> bool:
+            if m.get_type() != "PARAM_VALUE" or m.get_srcSystem() != sysid:
+                return False
+            pid = m.param_id if isinstance(m.param_id, str) else m.param_id.decode(errors="replace")
+            return pid.rstrip("\x00") == name
+
+        for attempt in range(attempts):
+            self.send(self.mav.param_request_read_encode(sysid, peer.compid, name.encode(), -1))
+            try:
+                return float((await self.wait_message(answer, timeout)).param_value)
+            except asyncio.TimeoutError:
+                log.info("%s: no answer to reading %s (attempt %d of %d)", who, name, attempt + 1, attempts)
+        raise CommandTimeout(f"reading parameter {name}", who, attempts, timeout)
+
     async def set_message_interval(self, sysid: int, message_id: int, rate_hz: float, **kw: Any) -> Any:
         interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
         return await self.command(sysid, MAV.MAV_CMD_SET_MESSAGE_INTERVAL,

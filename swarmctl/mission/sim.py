@@ -7,12 +7,14 @@ vehicles and learns about targets only from the mocks' detector reports.
 
 from __future__ import annotations
 
+import math
 import socket
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from swarmctl.geo.fence import farthest_metres, fence_polygon
 from swarmctl.mavlink.mock import MockAutopilot
 from swarmctl.mavlink.radio import Radio
 from swarmctl.mission.config import VehicleSpec
@@ -85,11 +87,15 @@ class SimSwarm:
     channel: Channel | None = None
     gcs_failsafe: float | None = 5.0
     speed: float = 10.0  # m/s, a usual cruise speed for search quadcopters
+    # the mock ArduPilots' FENCE_RADIUS (their circle fence round home); None: as a vehicle set up for
+    # this area would have it, reaching the grid's fence from the launch cell (at least the default 300 m)
+    fence_radius: float | None = None
     mocks: list[MockAutopilot] = field(default_factory=list)
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
     detector_ports: dict[int, tuple[str, int]] = field(default_factory=dict)
     radio: Radio | None = None
+    _fence: list[tuple[float, float]] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         self.starts = start_cells(self.grid, self.uavs)
@@ -114,6 +120,8 @@ class SimSwarm:
                 mock = MockAutopilot(sysid=sysid, connect=connect, home=(lat, lon, HOME_AMSL), autopilot=autopilot,
                                      speedup=self.speedup, ready_after=2.0, gcs_failsafe_timeout=self.gcs_failsafe,
                                      speed=self.speed, seed=self.seed * 1000 + i)
+                if autopilot == "ardupilot":
+                    mock.params["FENCE_RADIUS"] = self._fence_radius(lat, lon)
                 det = SimDetector(self.grid, self.targets, i, self.mission_id, self.altitude,
                                   udp=self.detector_ports.get(i))
                 det.attach(mock)
@@ -127,6 +135,14 @@ class SimSwarm:
             self.stop()
             raise
         return self
+
+    def _fence_radius(self, lat: float, lon: float) -> float:
+        if self.fence_radius is not None:
+            return float(self.fence_radius)
+        if self._fence is None:
+            self._fence = fence_polygon(self.grid)
+        reach = farthest_metres(self._fence, lat, lon)
+        return float(max(300, math.ceil(reach / 50.0) * 50))
 
     def plan(self, policy: str, **kw: Any) -> MissionPlan:
         assert self.radio is not None, "start() the swarm first"

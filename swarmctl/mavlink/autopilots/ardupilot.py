@@ -17,6 +17,7 @@ import math
 import time
 from typing import Any
 
+from swarmctl.geo.fence import farthest_metres
 from swarmctl.mavlink.codec import COPTER_MODE_NAMES, COPTER_MODES, from_deg_e7, to_deg_e7
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
 from swarmctl.mavlink.network import MAV, MavlinkLink
@@ -227,13 +228,35 @@ class ArduPilotVehicle(Vehicle):
 
     async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
         """Upload polygon as the inclusion fence (mission protocol, mission_type FENCE), then switch the
-        fence on with MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION; the
-        polygon is enforced only if FENCE_TYPE includes it (4: polygon)."""
+        fence on with MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION. First
+        the vehicle's FENCE_TYPE and FENCE_RADIUS are checked (_check_fence_settings)."""
         vertices = fence_vertices(polygon)
+        await self._check_fence_settings(vertices)
         peer = self.link.peer(self.sysid)
         items = fence_items(self.link.mav, self.sysid, peer.compid, vertices)
         await self._upload(items, MAV.MAV_MISSION_TYPE_FENCE, "the fence upload")
         await self._command(MAV.MAV_CMD_DO_FENCE_ENABLE, 1.0)
+
+    async def _check_fence_settings(self, vertices: list[tuple[float, float]]) -> None:
+        """Refuse a fence the vehicle's own settings would spoil, before anything is uploaded: one
+        FENCE_TYPE leaves out (the polygon would not be enforced), or a circle fence round home
+        (FENCE_TYPE 2, radius FENCE_RADIUS, default 300 m) smaller than the polygon (the vehicle would
+        breach it inside the search area). swarmctl never changes these parameters itself."""
+        read = lambda name: self.link.read_param(  # noqa: E731
+            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name)
+        fence_type = int(await read("FENCE_TYPE"))
+        if not fence_type & 4:
+            raise MavlinkError(f"{self.name}: FENCE_TYPE is {fence_type}, without the polygon (4): the vehicle "
+                               f"would not enforce the uploaded fence; set FENCE_TYPE to {fence_type | 4}")
+        home = self.home
+        if fence_type & 2 and home is not None:
+            radius = await read("FENCE_RADIUS")
+            reach = farthest_metres(vertices, home.lat, home.lon)
+            if radius < reach:
+                raise MavlinkError(
+                    f"{self.name}: FENCE_RADIUS is {radius:g} m but the fence reaches {reach:.0f} m from home, so "
+                    f"the circle fence would cut the search area; set FENCE_RADIUS to at least "
+                    f"{math.ceil(reach / 10) * 10} or take the circle (2) out of FENCE_TYPE (now {fence_type})")
 
     async def _upload(self, items: list[Any], mission_type: int, what: str) -> None:
         """The mission protocol's upload: MISSION_COUNT, then each item the vehicle asks for with

@@ -62,6 +62,10 @@ _PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station tou
     "COM_OF_LOSS_T": 1.0, "SYS_AUTOSTART": 4001.0,
     "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
 }
+_ARDUPILOT_PARAMS: dict[str, float] = {  # ArduCopter's fence parameters, at their defaults
+    "FENCE_ENABLE": 0.0, "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
+    "FENCE_RADIUS": 300.0, "FENCE_ACTION": 1.0, "FENCE_MARGIN": 2.0,
+}
 _COPTER_ARMABLE = {"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
 
 
@@ -136,6 +140,8 @@ class MockAutopilot:
         self.commands: deque[tuple[int, int]] = deque(maxlen=10_000)  # (command, MAV_RESULT)
         self.ignored = 0  # messages seen that were addressed to another system
         self.fence = MockFence(self)  # made here, not at boot: the stored fence survives reboots
+        # parameters are stored too (the fence polygon is enforced; the circle and altitude are not)
+        self.params = dict(_PX4_PARAMS if self.personality == "px4" else _ARDUPILOT_PARAMS)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -165,7 +171,6 @@ class MockAutopilot:
         self.last_gcs_heartbeat: float | None = None
         self.gcs_failsafe = False
         self.last_setpoint = -1e9
-        self.params = dict(_PX4_PARAMS)
         # ArduPilot's DO_FENCE_ENABLE is not saved: after a reboot the stored fence is off until enabled
         # again (FENCE_ENABLE 0). PX4 enforces a stored fence from boot (GF_ACTION).
         self.fence.enabled = False
