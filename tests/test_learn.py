@@ -224,3 +224,61 @@ def test_snapshots_between_rounds_are_refused():
 
     with pytest.raises(ValueError, match="multiple of"):
         train(TINY_WORLD, replace(tiny_config(96), snapshots=(30,)), seed=1, out=Path("/nonexistent/m.pt"))
+
+
+def _closer_to_the_unexplored(explored: np.ndarray, blocked: np.ndarray, cell, move: int) -> bool:
+    """The move brings `cell` one step nearer (BFS) to the nearest cell not yet explored."""
+    from swarmctl.world.moves import MOVES
+    from swarmctl.world.paths import grid_distances
+
+    dist = grid_distances(~blocked[None], ~explored[None])[0]
+    nx, ny = np.asarray(cell) + MOVES[move]
+    return dist[nx, ny] == dist[tuple(cell)] - 1
+
+
+def test_with_straggler_frontier_the_last_vehicle_searching_heads_for_the_unexplored(tiny_model):
+    from swarmctl.policy.ddql import last_searching
+    from tests.helpers import make_env
+
+    out, _ = tiny_model
+    # vehicles 0 and 1 hover on their targets; vehicle 2 searches alone for the third, far east
+    scenario = dict(targets=[[1, 1], [3, 1], [11, 11]], starts=[[1, 1], [3, 1], [0, 6]], window=8)
+    env = make_env(12, **scenario)
+    policy = make_ddql_policy(f"ddql:{out}:straggler=frontier")
+    policy.reset(env, np.random.default_rng(0))
+    for _ in range(6):
+        assert last_searching(env)[0].tolist() == [False, False, True]
+        moves = policy.act(env)
+        assert moves[0, :2].tolist() == [0, 0]  # the hover
+        assert _closer_to_the_unexplored(env.explored[0, 2], env.known_obstacles()[0, 2], env.pos[0, 2], moves[0, 2])
+        env.step(moves)
+    # while two vehicles still search, every move is the network's, draw for draw
+    one_hovers = dict(scenario, starts=[[1, 1], [5, 1], [0, 6]])
+    plain, ours = (make_ddql_policy(f"ddql:{out}{opt}") for opt in ("", ":straggler=frontier"))
+    a, b = make_env(12, **one_hovers), make_env(12, **one_hovers)
+    plain.reset(a, np.random.default_rng(3))
+    ours.reset(b, np.random.default_rng(3))
+    for _ in range(5):
+        assert not last_searching(a).any()
+        ma, mb = plain.act(a), ours.act(b)
+        assert (ma == mb).all()
+        a.step(ma), b.step(mb)
+
+
+def test_in_the_field_the_last_agent_searching_takes_the_frontier_move(tiny_model):
+    from swarmctl.mission.decide import FieldPolicy
+    from swarmctl.world.knowledge import Knowledge, Position
+
+    out, _ = tiny_model
+    kn = Knowledge(12, 12, vehicle_id=2)
+    kn.set_position(3, (0, 6))
+    kn.sense_truth(np.zeros((12, 12)), np.zeros((12, 12), dtype=bool))
+    kn.merge_position(0, Position(3, (1, 1), on_target=True))
+    kn.merge_position(1, Position(3, (3, 1), on_target=True))
+    policy = FieldPolicy(f"ddql:{out}:straggler=frontier", seed=0, window=8)
+    for _ in range(10):
+        choice = policy.choose([kn])[0]
+        assert choice.by == "frontier" and choice.q is not None
+        assert _closer_to_the_unexplored(kn.explored, kn.obstacle, (0, 6), choice.move)
+    kn.merge_position(1, Position(4, (4, 1)))  # vehicle 1 left its target: two search now
+    assert policy.choose([kn])[0].by is None

@@ -110,7 +110,7 @@ def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_withou
 
     monkeypatch.chdir(ROOT)
     policy, note = mission_cli.default_policy()
-    assert policy == f"ddql:{ROOT / 'models' / 'obstacles-3uav.pt'}" and note is None
+    assert policy == f"ddql:{ROOT / 'models' / 'obstacles-3uav.pt'}:straggler=frontier" and note is None
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(mission_cli, "ROOT", tmp_path)
     assert mission_cli.default_policy() == ("frontier", "models/obstacles-3uav.pt is not there")

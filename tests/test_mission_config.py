@@ -92,6 +92,16 @@ def test_a_model_for_another_observation_size_is_refused(tmp_path):
         load_mission(p)
 
 
+def test_a_model_with_options_keeps_them_and_a_bad_option_is_named(tmp_path):
+    save_checkpoint(tmp_path / "m.pt", QNetwork(20), {}, {}, {})
+    spec = "ddql:m.pt:tau=0.05:straggler=frontier"
+    cfg = load_mission(write(tmp_path, GOOD.replace('policy = "la:4"', f'policy = "{spec}"')))
+    assert cfg.policy == f"ddql:{(tmp_path / 'm.pt').resolve()}:tau=0.05:straggler=frontier"
+    p = write(tmp_path, GOOD.replace('policy = "la:4"', 'policy = "ddql:m.pt:straggler=maybe"'))
+    with pytest.raises(InputError, match="mission.policy.*straggler must be network or frontier"):
+        load_mission(p)
+
+
 def test_not_toml(tmp_path):
     p = write(tmp_path, "[mission\nname=")
     with pytest.raises(InputError, match="not valid TOML"):

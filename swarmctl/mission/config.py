@@ -144,17 +144,21 @@ def load_mission(path: str | Path) -> MissionConfig:
     if not isinstance(policy, str) or not policy:
         raise _fail(path, "mission.policy", "is missing", 'write for example policy = "ddql:models/cluster-2uav.pt" or "la:4"')
     if policy.startswith(("ddql:", "ddql-greedy:")):
+        from swarmctl.policy.checkpoint import load_checkpoint
+        from swarmctl.policy.ddql import split_options
+
         kind, _, rest = policy.partition(":")
-        model, sep, tau = rest.partition(":tau=")
+        model, options = split_options(rest)
         model_path = (path.parent / model).resolve()
         if not model_path.is_file():
             raise _fail(path, "mission.policy", f"names the model {model!r}, which does not exist",
                         "fix the path (relative to the mission file)")
-        policy = f"{kind}:{model_path}{sep}{tau}"
-        from swarmctl.policy.checkpoint import load_checkpoint
+        policy = f"{kind}:{model_path}{options}"
+        from swarmctl.policy.registry import make_policy
 
         try:
             load_checkpoint(model_path, window=OBSERVATION_WINDOW)
+            make_policy(policy)  # the options
         except InputError as exc:
             raise InputError(f"{path}: mission.policy: {exc}") from None
     else:

@@ -610,6 +610,8 @@ class Controller:
             records.append(dict(vehicle=a.name, sysid=a.spec.sysid, cell=a.cell, obs=c.obs_digest, q=c.q,
                                 move=MOVE_NAMES[c.move], guarded=MOVE_NAMES[_move_index(a.cell, d.cell)],
                                 refused=d.refused, received=a.received_since()))
+            if c.by:  # the move came from a planner, not from the Q-values recorded
+                records[-1]["by"] = c.by
         since = time.monotonic()
         reached = await asyncio.gather(*(self._fly(a, cell, plan.step_timeout) for a, cell in moves))
         waited = time.monotonic() - since

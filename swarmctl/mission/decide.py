@@ -3,10 +3,12 @@
 The controller has no simulator state: each agent knows only its Knowledge (explored cells, phi and
 obstacles where explored, the last known cells of the others, reported targets). Supported here:
 
-- `ddql:PATH[:tau=T][:taken=remove|keep]`, `ddql-greedy:PATH`: the Q-network on each agent's
-  3 x F x F observation (Knowledge.observation, the simulator's one observation builder, with the
-  targets others hover on removed unless taken=keep), batched over the agents of the process in one
-  forward pass; hovering is the controller's HOVER state;
+- `ddql:PATH[:tau=T][:taken=remove|keep][:straggler=network|frontier]`, `ddql-greedy:PATH`: the
+  Q-network on each agent's 3 x F x F observation (Knowledge.observation, the simulator's one
+  observation builder, with the targets others hover on removed unless taken=keep), batched over the
+  agents of the process in one forward pass; hovering is the controller's HOVER state; with
+  straggler=frontier an agent that knows every other vehicle to hover on a target takes the
+  frontier planner's move;
 - `frontier`: the frontier planner (swarmctl.policy.planners) run by each agent on its own
   knowledge: known targets not held by a hovering vehicle are assigned nearest pair first, the
   others go to the nearest unexplored cell, spread apart by claims;
@@ -42,6 +44,7 @@ class Choice:
     move: int
     obs_digest: str | None = None
     q: list[float] | None = None
+    by: str | None = None  # "frontier" when ddql's straggler=frontier took the move from the network
 
 
 def _blocked(kn: Knowledge) -> np.ndarray:
@@ -188,7 +191,17 @@ class FieldPolicy:
         blocked = np.stack([_KnowledgeWorld(kn).known_obstacles()[0, 0] for kn in knowledges])[None] \
             if self.net.mask else None
         moves = choose(q, allowed_moves(cells, hover_here, blocked), self.tau, self.rng)[0]
+        by = [None] * len(knowledges)
+        if self.net.straggler_frontier:
+            for i, kn in enumerate(knowledges):
+                if _last_searching(kn):
+                    moves[i], by[i] = _frontier_move(kn, self.rng, self.window, self.fov), "frontier"
         q = q[0]
-        return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv])
-                for m, o, qv in zip(moves, obs[0], q)]
+        return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv], b)
+                for m, o, qv, b in zip(moves, obs[0], q, by)]
+
+
+def _last_searching(kn: Knowledge) -> bool:
+    """Every other vehicle this agent knows of hovers on a target: it is the last one searching."""
+    return bool(kn.peers) and all(p.on_target for p in kn.peers.values())
 

@@ -11,7 +11,11 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
   our answer to the paper's stragglers, vehicles that stop far from any target once the others have
   found theirs (default yes; no lets the network decide, as in the paper);
 - `mask=yes|no`: moves off the map or into an obstacle the vehicle knows of are never chosen, as
-  LA(n) scores them -inf (default yes; no as in the paper).
+  LA(n) scores them -inf (default yes; no as in the paper);
+- `straggler=network|frontier`: who steers the last vehicle still searching once every other one
+  hovers on a target. The paper names this straggler, far from anything its window shows on a big
+  map, as its residual failure; `frontier` hands it to the frontier planner (nearest unexplored
+  cell) until it finds a target (default network).
 
 `ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft.
 """
@@ -26,6 +30,7 @@ import torch
 from swarmctl.errors import InputError
 from swarmctl.policy.base import hovering
 from swarmctl.policy.checkpoint import load_checkpoint
+from swarmctl.policy.planners import FrontierPolicy
 from swarmctl.world.env import SearchEnv
 from swarmctl.world.moves import MOVES, STAY
 
@@ -79,19 +84,22 @@ def env_allowed_moves(env: SearchEnv, hover: bool = True, mask: bool = True) -> 
 
 class DDQLPolicy:
     def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
-                 hover: bool = True, mask: bool = True):
+                 hover: bool = True, mask: bool = True, straggler_frontier: bool = False):
         self.path = path
         self.tau = tau
         self.remove_taken, self.hover, self.mask = remove_taken, hover, mask
+        self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
         self.rng = np.random.default_rng(0)
+        self.frontier = FrontierPolicy()
 
     def reset(self, env: SearchEnv, rng: np.random.Generator) -> None:
         if env.cfg.window != self.net.window:
             raise InputError(f"{self.path}: the model was trained for {self.net.window} x {self.net.window} "
                              f"observations, not {env.cfg.window} x {env.cfg.window}; use --window {self.net.window}")
         self.rng = rng
+        self.frontier.reset(env, rng.spawn(1)[0])  # its own stream: the network's draws stay as they were
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         """Q-values (B, U, 5) for observations (B, U, 3, F, F)."""
@@ -103,22 +111,40 @@ class DDQLPolicy:
     def act(self, env: SearchEnv) -> np.ndarray:
         obs = env.observe(self.remove_taken)  # its own observation: the world's setting may differ
         allowed = env_allowed_moves(env, self.hover, self.mask)
-        return choose(self.q_values(obs), allowed, self.tau, self.rng)
+        moves = choose(self.q_values(obs), allowed, self.tau, self.rng)
+        if self.straggler_frontier:
+            last = last_searching(env)
+            if last.any():
+                moves = np.where(last, self.frontier.act(env), moves)
+        return moves
 
 
-_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no"), "mask": ("yes", "no")}
+def last_searching(env: SearchEnv) -> np.ndarray:
+    """(B, U) bool: the vehicle is the only one not hovering on a target (the paper's straggler)."""
+    hover = hovering(env)
+    return ~hover & (hover.sum(axis=1, keepdims=True) == env.uavs - 1) & (env.uavs > 1)
+
+
+def split_options(rest: str) -> tuple[str, str]:
+    """`PATH:key=value:...` -> (PATH, ":key=value:..."), the options being those `ddql:` takes."""
+    path = rest
+    while (m := re.search(r":(tau|taken|hover|mask|straggler)=([^:]*)$", path)) is not None:
+        path = path[: m.start()]
+    return path, rest[len(path):]
+
+
+_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no"), "mask": ("yes", "no"),
+            "straggler": ("network", "frontier")}
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
-    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]` or
-    `ddql-greedy:PATH[...]`, options in any order."""
+    """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]
+    [:straggler=network|frontier]` or `ddql-greedy:PATH[...]`, options in any order."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
-    path, options = rest, {}
-    while (m := re.search(r":(tau|taken|hover|mask)=([^:]*)$", path)) is not None:
-        options[m.group(1)] = m.group(2)
-        path = path[: m.start()]
+    path, suffix = split_options(rest)
+    options = dict(re.findall(r":([a-z]+)=([^:]*)", suffix))
     tau: float | None = 0.1
     if "tau" in options:
         try:
@@ -134,4 +160,5 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
     if kind == "ddql-greedy":
         tau = None
     return DDQLPolicy(path, tau=tau, name=spec, remove_taken=options.get("taken", "remove") == "remove",
-                      hover=options.get("hover", "yes") == "yes", mask=options.get("mask", "yes") == "yes")
+                      hover=options.get("hover", "yes") == "yes", mask=options.get("mask", "yes") == "yes",
+                      straggler_frontier=options.get("straggler", "network") == "frontier")
