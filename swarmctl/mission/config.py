@@ -146,6 +146,7 @@ def load_mission(path: str | Path) -> MissionConfig:
     if policy.startswith(("ddql:", "ddql-greedy:")):
         from swarmctl.policy.checkpoint import load_checkpoint
         from swarmctl.policy.ddql import split_options
+        from swarmctl.policy.registry import make_policy
 
         kind, _, rest = policy.partition(":")
         model, options = split_options(rest)
@@ -154,8 +155,6 @@ def load_mission(path: str | Path) -> MissionConfig:
             raise _fail(path, "mission.policy", f"names the model {model!r}, which does not exist",
                         "fix the path (relative to the mission file)")
         policy = f"{kind}:{model_path}{options}"
-        from swarmctl.policy.registry import make_policy
-
         try:
             load_checkpoint(model_path, window=OBSERVATION_WINDOW)
             make_policy(policy)  # the options

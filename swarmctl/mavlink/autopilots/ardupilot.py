@@ -238,10 +238,11 @@ class ArduPilotVehicle(Vehicle):
         await self._command(MAV.MAV_CMD_DO_FENCE_ENABLE, 1.0)
 
     async def _check_fence_settings(self, vertices: list[tuple[float, float]]) -> None:
-        """Refuse a fence the vehicle's own settings would spoil, before anything is uploaded: one
-        FENCE_TYPE leaves out (the polygon would not be enforced), or a circle fence round home
-        (FENCE_TYPE 2, radius FENCE_RADIUS, default 300 m) smaller than the polygon (the vehicle would
-        breach it inside the search area). swarmctl never changes these parameters itself."""
+        """Refuse a fence the vehicle's own settings would spoil, before anything is uploaded: a
+        FENCE_TYPE without the polygon (4; the polygon would not be enforced), or, once home is known, a
+        circle fence round home (FENCE_TYPE 2, radius FENCE_RADIUS, default 300 m) that does not hold
+        the polygon (the vehicle would breach it inside the search area). swarmctl never changes these
+        parameters itself."""
         read = lambda name: self.link.read_param(  # noqa: E731
             self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name)
         fence_type = int(await read("FENCE_TYPE"))

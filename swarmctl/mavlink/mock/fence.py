@@ -12,8 +12,8 @@ removes the fence, MISSION_REQUEST_LIST / MISSION_REQUEST_INT download it. Only 
 vertices (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION) are taken; other fence items are UNSUPPORTED.
 
 The stored fence survives reboots, like the autopilots' own storage. It is enforced when it is on:
-ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0 off; not saved, so off again after a reboot); PX4 as soon as one is uploaded (its
-GF_ACTION parameter is not 0). With several inclusion polygons ArduPilot keeps the vehicle inside all
+ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0 off; not saved, so off again after a
+reboot); PX4 as soon as one is uploaded (its GF_ACTION parameter is not 0). With several inclusion polygons ArduPilot keeps the vehicle inside all
 of them (its default FENCE_OPTIONS) and PX4 inside any one of them; points on the boundary count as
 inside.
 """
