@@ -13,8 +13,8 @@ The paper trains a separate model per count, each with its exploration annealed 
 That costs 2 x seeds x (sum of the counts) episodes, 50,000 for the full figure: 15-18 core-hours
 here. Snapshots of one run per seed cost 2 x seeds x (largest count), 30,000 episodes. The defaults
 (`--parallel 10 --updates-per-step 1.25`: one gradient step per 16 vehicle transitions, 37,500 per
-3000 episodes, the recipe of models/cluster-2uav.pt's first stage) took 55-57 min per run on one
-core with a second run beside it: about 9 core-hours for the figure. A fifth of those gradient steps (`--updates-per-step 0.25`, 14 min
+3000 episodes, the recipe of models/cluster-2uav.pt's first stage) took 45-57 min of training per run
+on one core with a second run beside it: 8.5 core-hours for the figure's 10 runs. A fifth of those gradient steps (`--updates-per-step 0.25`, 14 min
 per run) learns nothing in 3000 episodes: success 0.01-0.02 for both rules, seed 0. A snapshot taken
 early in a run was trained while exploration was still high, which the paper's protocol avoids.
 `--map 6 --targets 2 --episodes 20 40` gives a quick smoke run.
