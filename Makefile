@@ -4,7 +4,7 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test bench clean
+.PHONY: demo test lint bench clean
 
 $(BIN)/swarmctl: pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -16,7 +16,13 @@ demo: $(BIN)/swarmctl
 	$(BIN)/swarmctl demo --uavs 3 --seed 0 --out runs/demo
 
 test: $(BIN)/swarmctl
+	$(BIN)/ruff check swarmctl tests tools
+	$(BIN)/ruff format --check swarmctl tests tools
 	$(BIN)/python -m pytest -q
+
+lint: $(BIN)/swarmctl
+	$(BIN)/ruff check --fix swarmctl tests tools
+	$(BIN)/ruff format swarmctl tests tools
 
 bench: $(BIN)/swarmctl
 	$(BIN)/swarmctl bench

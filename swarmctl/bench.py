@@ -80,9 +80,13 @@ def run_bench(seconds: float = 2.0) -> dict:
     m20 = WorldConfig()
     m50 = WorldConfig(map_size=50, uavs=10, targets=16, clusters=4, obstacles=0.1)
     out = {
-        "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(),
-                    "processor": platform.processor() or platform.machine(), "python": platform.python_version(),
-                    "numpy": np.__version__},
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "platform": platform.platform(),
+            "processor": platform.processor() or platform.machine(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+        },
         "env_vehicle_steps_per_s": env_throughput(m20, 256, True, seconds),
         "env_vehicle_steps_per_s_no_obs": env_throughput(m20, 256, False, seconds),
         "env_m50_u10_vehicle_steps_per_s": env_throughput(m50, 64, True, seconds),

@@ -21,8 +21,16 @@ from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
 from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
 
-for command in (eval_command, train_command, bench_command, plan_command, mock_vehicle_command, demo_command,
-                fly_command, agent_command):
+for command in (
+    eval_command,
+    train_command,
+    bench_command,
+    plan_command,
+    mock_vehicle_command,
+    demo_command,
+    fly_command,
+    agent_command,
+):
     cli.add_command(command)
 
 

@@ -25,8 +25,9 @@ def to_lonlat(geom_metres, proj: LocalProjection = PROJ):
 def grid_box_lonlat(grid, x0, y0, x1, y1):
     """A box given in grid cell units (cell (x, y) spans [x, x+1]) as a lon/lat polygon."""
     box = shapely.box(x0, y0, x1, y1)
-    return shapely.transform(box, lambda xy: np.column_stack(
-        grid.projection.to_lonlat(*grid.grid_to_metres(xy[:, 0], xy[:, 1]))))
+    return shapely.transform(
+        box, lambda xy: np.column_stack(grid.projection.to_lonlat(*grid.grid_to_metres(xy[:, 0], xy[:, 1])))
+    )
 
 
 def feature(geom, **props) -> dict:

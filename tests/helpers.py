@@ -11,8 +11,12 @@ def make_scenario(size, targets, starts, obstacles=()):
     grid = np.zeros((size, size), dtype=bool)
     for x, y in obstacles:
         grid[x, y] = True
-    return Scenario(targets=np.array(targets, dtype=np.int64), obstacles=grid,
-                    starts=np.array(starts, dtype=np.int64), obstacle_rects=[])
+    return Scenario(
+        targets=np.array(targets, dtype=np.int64),
+        obstacles=grid,
+        starts=np.array(starts, dtype=np.int64),
+        obstacle_rects=[],
+    )
 
 
 def make_env(size, targets, starts, obstacles=(), stop_at_success=True, **cfg):

@@ -19,16 +19,27 @@ def settle(radio: Radio, agents: list[KnowledgeExchange], timeout: float = 10.0)
 
 
 @contextlib.contextmanager
-def swarm(n: int, size: int = 20, channel: Channel | None = None, seed: int = 0, mission_id: int = 7, push: bool = True,
-          digest_every: int = 5, radio: Radio | None = None):
+def swarm(
+    n: int,
+    size: int = 20,
+    channel: Channel | None = None,
+    seed: int = 0,
+    mission_id: int = 7,
+    push: bool = True,
+    digest_every: int = 5,
+    radio: Radio | None = None,
+):
     """A radio (unless given) and n exchanges registered with it; everything closed on exit."""
     own_radio = radio is None
     radio = radio or Radio(channel, seed=seed)
     agents: list[KnowledgeExchange] = []
     try:
         for v in range(n):
-            agents.append(KnowledgeExchange(Knowledge(size, size, v), mission_id, radio.address,
-                                            digest_every=digest_every, push=push))
+            agents.append(
+                KnowledgeExchange(
+                    Knowledge(size, size, v), mission_id, radio.address, digest_every=digest_every, push=push
+                )
+            )
             radio.add_peer(agents[-1].address, system_id=v + 1)
         yield radio, agents
     finally:

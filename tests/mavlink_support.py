@@ -5,7 +5,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-from typing import Any, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 from swarmctl.mavlink.mock import MockAutopilot
 
@@ -29,11 +30,12 @@ def mock_vehicles(*specs: dict[str, Any]) -> Iterator[list[MockAutopilot]]:
 
 def run(coro: Any, timeout: float = 60.0) -> Any:
     """Run a coroutine on a fresh loop with an overall timeout."""
+
     async def bounded() -> Any:
         return await asyncio.wait_for(coro, timeout)
+
     return asyncio.run(bounded())
 
 
 def our_threads() -> list[str]:
-    return [t.name for t in threading.enumerate()
-            if t.name.startswith(("mock-autopilot", "mavlink-rx"))]
+    return [t.name for t in threading.enumerate() if t.name.startswith(("mock-autopilot", "mavlink-rx"))]

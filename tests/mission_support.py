@@ -13,14 +13,13 @@ from swarmctl.geo.grid import GeoGrid
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.recorder import Recorder
 
-PROJ = ("+proj=tmerc +lat_0=41.881895 +lon_0=-87.632384 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m "
-        "+no_defs +type=crs")
+PROJ = "+proj=tmerc +lat_0=41.881895 +lon_0=-87.632384 +k=1 +x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs +type=crs"
 
 
 def small_grid(width: int = 10, height: int = 10) -> GeoGrid:
     """A width x height grid of 10 m cells in Chicago with a 2 x 2 block of buildings in the middle."""
     blocked = np.zeros((width, height), dtype=bool)
-    blocked[width // 2 - 1: width // 2 + 1, height // 2 - 1: height // 2 + 1] = True
+    blocked[width // 2 - 1 : width // 2 + 1, height // 2 - 1 : height // 2 + 1] = True
     return GeoGrid(PROJ, (0.0, 0.0), 0.0, 10.0, blocked)
 
 
@@ -68,5 +67,6 @@ async def wait_for(condition: Any, timeout: float, what: str) -> None:
 
 
 def our_threads() -> list[str]:
-    return [t.name for t in threading.enumerate()
-            if t.name.startswith(("mock-autopilot", "mavlink-rx", "knowledge-radio"))]
+    return [
+        t.name for t in threading.enumerate() if t.name.startswith(("mock-autopilot", "mavlink-rx", "knowledge-radio"))
+    ]

@@ -16,8 +16,22 @@ def run(*args):
 
 def test_eval_json_holds_one_result_per_policy(tmp_path):
     out = tmp_path / "r.json"
-    code = main(["eval", "--episodes", "20", "--policy", "la:2", "--policy", "oracle", "--seed", "3",
-                 "--json", str(out), "--no-progress"])
+    code = main(
+        [
+            "eval",
+            "--episodes",
+            "20",
+            "--policy",
+            "la:2",
+            "--policy",
+            "oracle",
+            "--seed",
+            "3",
+            "--json",
+            str(out),
+            "--no-progress",
+        ]
+    )
     assert code == 0
     data = json.loads(out.read_text())
     assert [r["policy"] for r in data["results"]] == ["la:2", "oracle"]
@@ -44,19 +58,22 @@ def test_bench_json_names_units(tmp_path):
     assert data["ddql_decision_ms_batch1"] > 0 and data["ddql_paper_decision_ms_batch1"] > 0
 
 
-@pytest.mark.parametrize("args, needle", [
-    (["eval", "--policy", "nonsense"], "--policy"),
-    (["eval", "--policy", "la:x"], "la:4"),
-    (["eval", "--policy", "random", "--map", "0"], "--map"),
-    (["eval", "--policy", "random", "--window", "0"], "--window"),
-    (["eval", "--policy", "random", "--targets", "200"], "--targets"),
-    (["eval", "--policy", "random", "--obstacles", "0.95"], "--obstacles"),
-    (["eval", "--policy", "random", "--map", "3", "--uavs", "10"], "--uavs"),
-    (["eval", "--policy", "random", "--episodes", "0"], "--episodes"),
-    (["eval", "--policy", "random", "--steps", "0"], "--steps"),
-    (["eval", "--scenario", "sparse", "--targets", "9", "--policy", "random", "--no-progress"], "--targets"),
-    (["eval", "--policy", "random", "--uavs", "many"], "--uavs"),
-])
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["eval", "--policy", "nonsense"], "--policy"),
+        (["eval", "--policy", "la:x"], "la:4"),
+        (["eval", "--policy", "random", "--map", "0"], "--map"),
+        (["eval", "--policy", "random", "--window", "0"], "--window"),
+        (["eval", "--policy", "random", "--targets", "200"], "--targets"),
+        (["eval", "--policy", "random", "--obstacles", "0.95"], "--obstacles"),
+        (["eval", "--policy", "random", "--map", "3", "--uavs", "10"], "--uavs"),
+        (["eval", "--policy", "random", "--episodes", "0"], "--episodes"),
+        (["eval", "--policy", "random", "--steps", "0"], "--steps"),
+        (["eval", "--scenario", "sparse", "--targets", "9", "--policy", "random", "--no-progress"], "--targets"),
+        (["eval", "--policy", "random", "--uavs", "many"], "--uavs"),
+    ],
+)
 def test_bad_input_is_one_clear_line_and_exit_2(args, needle):
     code, out, err = run(*args)
     assert code == 2
@@ -71,8 +88,30 @@ def test_eval_plays_episodes_on_a_real_grid(tmp_path):
 
     grid = Path(__file__).resolve().parent.parent / "missions" / "chicago-loop" / "grid.npz"
     out = tmp_path / "r.json"
-    code = main(["eval", "--grid", str(grid), "--scenario", "cluster", "--uavs", "2", "--targets", "4", "--steps", "60",
-                 "--episodes", "4", "--policy", "frontier", "--policy", "oracle", "--no-progress", "--json", str(out)])
+    code = main(
+        [
+            "eval",
+            "--grid",
+            str(grid),
+            "--scenario",
+            "cluster",
+            "--uavs",
+            "2",
+            "--targets",
+            "4",
+            "--steps",
+            "60",
+            "--episodes",
+            "4",
+            "--policy",
+            "frontier",
+            "--policy",
+            "oracle",
+            "--no-progress",
+            "--json",
+            str(out),
+        ]
+    )
     assert code == 0
     rows = json.loads(out.read_text())["results"]
     assert rows[0]["scenario"]["grid"] == str(grid) and rows[0]["scenario"]["map_size"] == 50

@@ -48,6 +48,7 @@ def free_cell_centres(grid: GeoGrid):
 
 # --- the polygon -----------------------------------------------------------------------------------
 
+
 def test_the_chicago_grid_is_fenced_by_its_area_and_a_cell_of_margin():
     grid = GeoGrid.load(CHICAGO_GRID)
     fence = fence_polygon(grid)
@@ -80,8 +81,12 @@ def test_an_area_with_hundreds_of_vertices_is_simplified_without_cutting_into_it
 
 def test_bad_fence_polygons_are_refused_and_a_closed_ring_is_opened():
     assert fence_vertices(SQUARE + [SQUARE[0]]) == SQUARE
-    for bad in (SQUARE[:2], [SQUARE[0], SQUARE[1], SQUARE[0], SQUARE[2]], SQUARE[:3] + [(91.0, 0.0)],
-                SQUARE[:3] + [(0.0, float("nan"))]):
+    for bad in (
+        SQUARE[:2],
+        [SQUARE[0], SQUARE[1], SQUARE[0], SQUARE[2]],
+        SQUARE[:3] + [(91.0, 0.0)],
+        SQUARE[:3] + [(0.0, float("nan"))],
+    ):
         with pytest.raises(ValueError):
             fence_vertices(bad)
 
@@ -111,6 +116,7 @@ def test_fence_items_carry_every_vertex_to_1e7_degrees_and_the_count_in_param1(v
 
 
 # --- ArduPilot: the mission protocol over pymavlink ------------------------------------------------
+
 
 async def ardupilot(link: MavlinkLink, **kw) -> ArduPilotVehicle:
     v = ArduPilotVehicle(link, 1, **kw)
@@ -166,6 +172,7 @@ def test_a_vehicle_found_outside_its_fence_in_flight_returns_home():
 def test_lost_mission_messages_are_sent_again():
     """The first request and the final ack are lost: the mock asks again by itself, and the driver
     sends the last item again, which the mock acknowledges again."""
+
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")) as (m,):
@@ -206,14 +213,23 @@ def test_a_fence_too_big_for_the_vehicle_is_refused_with_its_reason():
 BIG = [offset_m(HOME[0], HOME[1], n, e) for n, e in [(-400, -400), (-400, 400), (400, 400), (400, -400)]]
 
 
-@pytest.mark.parametrize("params,needle", [
-    ({}, "FENCE_RADIUS is 300 m but the fence reaches 565 m from home, so the circle fence would cut the "
-         "search area; set FENCE_RADIUS to at least 570 or take the circle (2) out of FENCE_TYPE (now 7)"),
-    ({"FENCE_TYPE": 3.0}, "FENCE_TYPE is 3, without the polygon (4): the vehicle would not enforce the "
-                          "uploaded fence; set FENCE_TYPE to 7"),
-    ({"FENCE_TYPE": 5.0}, None),  # no circle
-    ({"FENCE_RADIUS": 570.0}, None),
-])
+@pytest.mark.parametrize(
+    "params,needle",
+    [
+        (
+            {},
+            "FENCE_RADIUS is 300 m but the fence reaches 565 m from home, so the circle fence would cut the "
+            "search area; set FENCE_RADIUS to at least 570 or take the circle (2) out of FENCE_TYPE (now 7)",
+        ),
+        (
+            {"FENCE_TYPE": 3.0},
+            "FENCE_TYPE is 3, without the polygon (4): the vehicle would not enforce the "
+            "uploaded fence; set FENCE_TYPE to 7",
+        ),
+        ({"FENCE_TYPE": 5.0}, None),  # no circle
+        ({"FENCE_RADIUS": 570.0}, None),
+    ],
+)
 def test_the_vehicles_own_fence_settings_are_checked_before_the_upload(params, needle):
     assert farthest_metres(BIG, HOME[0], HOME[1]) == pytest.approx(565.7, abs=1.5)  # offset_m is a flat-earth step
 
@@ -254,11 +270,13 @@ def test_a_silent_vehicle_ends_the_upload_with_a_timeout():
                     await v.close()
                 return str(err.value)
 
-    assert run(scenario()) == ("vehicle 1: no answer to the fence upload (waiting for a request for item 0) "
-                               "after 2 attempts (0.2 s each)")
+    assert run(scenario()) == (
+        "vehicle 1: no answer to the fence upload (waiting for a request for item 0) after 2 attempts (0.2 s each)"
+    )
 
 
 # --- PX4: MAVSDK's geofence plugin -----------------------------------------------------------------
+
 
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

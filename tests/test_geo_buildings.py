@@ -21,19 +21,46 @@ from tests.geo_helpers import blocked_cells, feature, grid_box_lonlat, to_lonlat
 SQUARE_60 = shapely.box(0, 0, 60, 60)
 
 
-@pytest.mark.parametrize("value, metres", [
-    (45, 45.0), (45.5, 45.5), ("45", 45.0), ("45 m", 45.0), ("45m", 45.0), ("12,5 m", 12.5),
-    ("150 ft", 45.72), ("150'", 45.72), ("12'6\"", 3.81), ("12.13 m", 12.13),
-    (None, None), ("", None), ("tall", None), ("0", None), (-3, None), (True, None), ([40], None),
-])
+@pytest.mark.parametrize(
+    "value, metres",
+    [
+        (45, 45.0),
+        (45.5, 45.5),
+        ("45", 45.0),
+        ("45 m", 45.0),
+        ("45m", 45.0),
+        ("12,5 m", 12.5),
+        ("150 ft", 45.72),
+        ("150'", 45.72),
+        ("12'6\"", 3.81),
+        ("12.13 m", 12.13),
+        (None, None),
+        ("", None),
+        ("tall", None),
+        ("0", None),
+        (-3, None),
+        (True, None),
+        ([40], None),
+    ],
+)
 def test_parse_height(value, metres):
     got = parse_height(value)
     assert got == (None if metres is None else pytest.approx(metres, abs=1e-9))
 
 
-@pytest.mark.parametrize("value, levels", [
-    ("10", 10.0), (10, 10.0), ("3.5", 3.5), ("3;4", 4.0), (0, None), ("0", None), (None, None), ("n/a", None),
-])
+@pytest.mark.parametrize(
+    "value, levels",
+    [
+        ("10", 10.0),
+        (10, 10.0),
+        ("3.5", 3.5),
+        ("3;4", 4.0),
+        (0, None),
+        ("0", None),
+        (None, None),
+        ("n/a", None),
+    ],
+)
 def test_parse_levels(value, levels):
     assert parse_levels(value) == levels
 
@@ -122,8 +149,11 @@ def test_unknown_height_rule(tiny):
 
 def test_buildings_outside_the_area_are_ignored_and_counted(tiny):
     area, buildings = tiny
-    bset = buildings(((1.2, 1.2, 1.8, 1.8), {"height": 90}), ((8.0, 8.0, 9.0, 9.0), {"height": 90}),
-                     ((-3.0, 2.0, -2.0, 3.0), {"height": 90}))
+    bset = buildings(
+        ((1.2, 1.2, 1.8, 1.8), {"height": 90}),
+        ((8.0, 8.0, 9.0, 9.0), {"height": 90}),
+        ((-3.0, 2.0, -2.0, 3.0), {"height": 90}),
+    )
     grid, report = run(area, bset)
     assert blocked_cells(grid) == {(1, 1)}
     assert (report.buildings_total, report.buildings_used, report.buildings_outside) == (3, 1, 2)
@@ -139,8 +169,10 @@ def test_multipolygon_building_is_one_building(tmp_path):
 
 
 def test_building_file_problems(tmp_path):
-    points = write_geojson(tmp_path / "points.geojson", {"type": "Feature", "properties": {},
-                                                         "geometry": {"type": "Point", "coordinates": [4.8, 45.7]}})
+    points = write_geojson(
+        tmp_path / "points.geojson",
+        {"type": "Feature", "properties": {}, "geometry": {"type": "Point", "coordinates": [4.8, 45.7]}},
+    )
     with pytest.raises(InputError, match="points.geojson: contains no building footprint"):
         load_buildings(points)
     with pytest.raises(InputError, match="b.shp: unknown file type"):

@@ -34,15 +34,21 @@ def test_plan_writes_grid_geojson_plan_and_preview(tmp_path, area_file, capsys):
     tower = to_lonlat(shapely.box(52, 52, 58, 58))
     shed = to_lonlat(shapely.box(112, 12, 118, 18))
     far = to_lonlat(shapely.box(1000, 1000, 1010, 1010))
-    buildings = write_geojson(tmp_path / "b.geojson", feature(tower, height="60 m"),
-                              feature(shed, **{"building:levels": "2"}), feature(far, height=99))
+    buildings = write_geojson(
+        tmp_path / "b.geojson",
+        feature(tower, height="60 m"),
+        feature(shed, **{"building:levels": "2"}),
+        feature(far, height=99),
+    )
     out_dir = tmp_path / "out"
     rc, out, err = plan(capsys, area_file, "--buildings", buildings, "--out", out_dir)
     assert rc == 0, err
     assert "grid: 20 x 10 = 200 cells of 10 m" in out
     assert "blocked: 1 cells (0.5 %)" in out
-    assert "3 in file, 2 in the area: 1 >= 40 m (obstacles), 1 below 40 m, 0 of unknown height (obstacles); " \
-           "1 outside the area ignored" in out
+    assert (
+        "3 in file, 2 in the area: 1 >= 40 m (obstacles), 1 below 40 m, 0 of unknown height (obstacles); "
+        "1 outside the area ignored" in out
+    )
     assert "largest connected free region: 199 cells" in out
     assert err == ""
     grid = GeoGrid.load(out_dir / "grid.npz")
@@ -67,8 +73,15 @@ def test_unreachable_free_cells_are_warned(tmp_path, capsys):
 
 
 def test_self_intersecting_polygon_is_repaired_with_a_warning(tmp_path, capsys):
-    bowtie = {"type": "Polygon", "coordinates": [[list(map(float, p)) for p in to_lonlat(
-        shapely.LineString([(0, 0), (100, 100), (100, 0), (0, 100), (0, 0)])).coords]]}
+    bowtie = {
+        "type": "Polygon",
+        "coordinates": [
+            [
+                list(map(float, p))
+                for p in to_lonlat(shapely.LineString([(0, 0), (100, 100), (100, 0), (0, 100), (0, 0)])).coords
+            ]
+        ],
+    }
     path = tmp_path / "bowtie.geojson"
     path.write_text(json.dumps(bowtie))
     rc, out, err = plan(capsys, path, "--out", tmp_path / "out")
@@ -80,8 +93,16 @@ def test_self_intersecting_polygon_is_repaired_with_a_warning(tmp_path, capsys):
 def test_plan_help_lists_the_options(capsys):
     assert main(["plan", "--help"]) == 0
     out = capsys.readouterr().out
-    for option in ("--buildings", "--cell", "--altitude", "--margin", "--rotate", "--unknown-height",
-                   "--max-cells", "--out"):
+    for option in (
+        "--buildings",
+        "--cell",
+        "--altitude",
+        "--margin",
+        "--rotate",
+        "--unknown-height",
+        "--max-cells",
+        "--out",
+    ):
         assert option in out
 
 
@@ -99,20 +120,44 @@ BAD_AREAS = {
     "malformed JSON": ("broken.geojson", '{"type": "FeatureCollection", "features": [', "not valid JSON"),
     "malformed KML": ("broken.kml", "<kml><Document><Placemark>", "not valid KML/XML"),
     "malformed plan": ("broken.plan", "{fileType: Plan}", "not valid JSON"),
-    "no polygon": ("points.geojson", json.dumps({"type": "Point", "coordinates": [4.85, 45.77]}),
-                   "contains no area polygon"),
+    "no polygon": (
+        "points.geojson",
+        json.dumps({"type": "Point", "coordinates": [4.85, 45.77]}),
+        "contains no area polygon",
+    ),
     "empty collection": ("empty.geojson", '{"type": "FeatureCollection", "features": []}', "contains no area polygon"),
     "not GeoJSON": ("list.json", "[1, 2, 3]", "not a GeoJSON object"),
-    "lat/lon swapped": ("swapped.geojson", json.dumps({"type": "Polygon", "coordinates": [
-        [[-35.363, 149.165], [-35.363, 149.166], [-35.362, 149.166], [-35.363, 149.165]]]}),
-        "latitude 149.16.* is beyond \\+-90.*swap"),
-    "non-WGS84 crs": ("feet.geojson", json.dumps({"type": "FeatureCollection", "crs": {
-        "type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::3435"}}, "features": []}),
-        "EPSG::3435.*must be WGS84.*reproject"),
-    "ring too short": ("short.geojson", json.dumps({"type": "Polygon", "coordinates": [[[4.8, 45.7], [4.9, 45.7]]]}),
-                       "not a polygon"),
-    "text coordinates": ("text.geojson", json.dumps({"type": "Polygon", "coordinates": [[["a", "b"]]]}),
-                         "not lists of numbers"),
+    "lat/lon swapped": (
+        "swapped.geojson",
+        json.dumps(
+            {
+                "type": "Polygon",
+                "coordinates": [[[-35.363, 149.165], [-35.363, 149.166], [-35.362, 149.166], [-35.363, 149.165]]],
+            }
+        ),
+        "latitude 149.16.* is beyond \\+-90.*swap",
+    ),
+    "non-WGS84 crs": (
+        "feet.geojson",
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "crs": {"type": "name", "properties": {"name": "urn:ogc:def:crs:EPSG::3435"}},
+                "features": [],
+            }
+        ),
+        "EPSG::3435.*must be WGS84.*reproject",
+    ),
+    "ring too short": (
+        "short.geojson",
+        json.dumps({"type": "Polygon", "coordinates": [[[4.8, 45.7], [4.9, 45.7]]]}),
+        "not a polygon",
+    ),
+    "text coordinates": (
+        "text.geojson",
+        json.dumps({"type": "Polygon", "coordinates": [[["a", "b"]]]}),
+        "not lists of numbers",
+    ),
     "unknown extension": ("area.shp", "whatever", "unknown file type '.shp'"),
 }
 
@@ -130,14 +175,20 @@ def test_bad_area_files(tmp_path, capsys, case):
     assert "Traceback" not in err and not (tmp_path / "out").exists()
 
 
-@pytest.mark.parametrize("args, message", [
-    (["--cell", "0"], "--cell 0: the cell size must be > 0"),
-    (["--cell", "-5"], "--cell -5: the cell size must be > 0"),
-    (["--cell", "0.1", "--max-cells", "1000"], "area.geojson: the grid would be 200\\d x 100\\d = 2,00\\d,\\d+ cells of 0.1 m.*--max-cells"),
-    (["--max-cells", "100"], "20 x 10 = 200 cells of 10 m.*over the limit of 100"),
-    (["--altitude", "0"], "--altitude 0"),
-    (["--margin", "-1"], "--margin -1"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--cell", "0"], "--cell 0: the cell size must be > 0"),
+        (["--cell", "-5"], "--cell -5: the cell size must be > 0"),
+        (
+            ["--cell", "0.1", "--max-cells", "1000"],
+            "area.geojson: the grid would be 200\\d x 100\\d = 2,00\\d,\\d+ cells of 0.1 m.*--max-cells",
+        ),
+        (["--max-cells", "100"], "20 x 10 = 200 cells of 10 m.*over the limit of 100"),
+        (["--altitude", "0"], "--altitude 0"),
+        (["--margin", "-1"], "--margin -1"),
+    ],
+)
 def test_bad_numbers(tmp_path, area_file, capsys, args, message):
     rc, out, err = plan(capsys, area_file, *args, "--out", tmp_path / "out")
     assert rc == 2
@@ -166,8 +217,12 @@ def test_bad_buildings_file_swapped(tmp_path, area_file, capsys):
 
 def test_subprocess_exit_status_and_single_line(tmp_path):
     path = _write(tmp_path, "broken.kml", "<kml><Placemark>")
-    proc = subprocess.run([sys.executable, "-m", "swarmctl.cli", "plan", str(path), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-m", "swarmctl.cli", "plan", str(path), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "broken.kml: not valid KML/XML" in proc.stderr
     assert "Traceback" not in proc.stderr and proc.stdout == ""

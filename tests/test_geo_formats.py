@@ -24,23 +24,37 @@ def _kml_coords(ring) -> str:
 
 def kml_text(polygons, nofly=()) -> str:
     """A KML document (with the usual namespace) of Placemarks."""
+
     def placemark(name, poly):
-        inner = "".join(f"<innerBoundaryIs><LinearRing><coordinates>{_kml_coords(r)}</coordinates>"
-                        "</LinearRing></innerBoundaryIs>" for r in poly.interiors)
-        return (f"<Placemark><name>{name}</name><Polygon><outerBoundaryIs><LinearRing><coordinates>"
-                f"{_kml_coords(poly.exterior)}</coordinates></LinearRing></outerBoundaryIs>{inner}</Polygon></Placemark>")
+        inner = "".join(
+            f"<innerBoundaryIs><LinearRing><coordinates>{_kml_coords(r)}</coordinates></LinearRing></innerBoundaryIs>"
+            for r in poly.interiors
+        )
+        return (
+            f"<Placemark><name>{name}</name><Polygon><outerBoundaryIs><LinearRing><coordinates>"
+            f"{_kml_coords(poly.exterior)}</coordinates></LinearRing></outerBoundaryIs>{inner}</Polygon></Placemark>"
+        )
+
     body = "".join(placemark(f"area {i}", p) for i, p in enumerate(polygons))
     body += "".join(placemark(f"No-fly {i}", p) for i, p in enumerate(nofly))
-    return ('<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2">'
-            f"<Document><name>test</name>{body}</Document></kml>")
+    return (
+        '<?xml version="1.0" encoding="UTF-8"?>\n<kml xmlns="http://www.opengis.net/kml/2.2">'
+        f"<Document><name>test</name>{body}</Document></kml>"
+    )
 
 
 def test_geojson_shapes_all_read(tmp_path):
     geom = shapely.geometry.mapping(to_lonlat(HOLED))
     multi = shapely.geometry.mapping(to_lonlat(shapely.MultiPolygon([HOLED])))
-    for i, obj in enumerate([geom, multi, {"type": "Feature", "properties": {}, "geometry": geom},
-                             {"type": "FeatureCollection", "features": [{"type": "Feature", "geometry": geom}]},
-                             {"type": "GeometryCollection", "geometries": [geom]}]):
+    for i, obj in enumerate(
+        [
+            geom,
+            multi,
+            {"type": "Feature", "properties": {}, "geometry": geom},
+            {"type": "FeatureCollection", "features": [{"type": "Feature", "geometry": geom}]},
+            {"type": "GeometryCollection", "geometries": [geom]},
+        ]
+    ):
         path = tmp_path / f"a{i}.geojson"
         path.write_text(json.dumps(obj))
         area = load_area(path)
@@ -50,8 +64,9 @@ def test_geojson_shapes_all_read(tmp_path):
 
 def test_wgs84_crs_members_are_accepted(tmp_path):
     for name in ("urn:ogc:def:crs:OGC:1.3:CRS84", "EPSG:4326", "urn:ogc:def:crs:EPSG::4326"):
-        path = write_geojson(tmp_path / "a.geojson", feature(to_lonlat(SQUARE_60)),
-                             crs={"type": "name", "properties": {"name": name}})
+        path = write_geojson(
+            tmp_path / "a.geojson", feature(to_lonlat(SQUARE_60)), crs={"type": "name", "properties": {"name": name}}
+        )
         assert len(load_area(path).polygons) == 1
 
 
@@ -67,23 +82,40 @@ def test_kml_outer_inner_boundaries_and_no_fly_placemark(tmp_path):
 def test_kml_multigeometry_and_no_namespace(tmp_path):
     a, b = to_lonlat(shapely.box(0, 0, 20, 60)), to_lonlat(shapely.box(40, 0, 60, 60))
     path = tmp_path / "multi.kml"
-    path.write_text("<kml><Placemark><MultiGeometry>" + "".join(
-        f"<Polygon><outerBoundaryIs><LinearRing><coordinates>{_kml_coords(p.exterior)}</coordinates>"
-        "</LinearRing></outerBoundaryIs></Polygon>" for p in (a, b)) + "</MultiGeometry></Placemark></kml>")
+    path.write_text(
+        "<kml><Placemark><MultiGeometry>"
+        + "".join(
+            f"<Polygon><outerBoundaryIs><LinearRing><coordinates>{_kml_coords(p.exterior)}</coordinates>"
+            "</LinearRing></outerBoundaryIs></Polygon>"
+            for p in (a, b)
+        )
+        + "</MultiGeometry></Placemark></kml>"
+    )
     area = load_area(path)
     assert len(area.polygons) == 2
     assert blocked_cells(make_grid(area, cell=10.0)[0]) == {(x, y) for x in (2, 3) for y in range(6)}
 
 
-@pytest.mark.parametrize("text, message", [
-    ("<kml><Placemark><Polygon>", "not valid KML/XML"),
-    ("<kml><Placemark><name>x</name><Point><coordinates>4.85,45.77</coordinates></Point></Placemark></kml>",
-     "contains no area polygon"),
-    ("<kml><Polygon><outerBoundaryIs><LinearRing><coordinates>a,b c,d</coordinates></LinearRing>"
-     "</outerBoundaryIs></Polygon></kml>", "must be 'lon,lat"),
-    ("<kml><Polygon><outerBoundaryIs><LinearRing><coordinates>45.7,4.8 45.8,4.8 45.8,94.9 45.7,4.8"
-     "</coordinates></LinearRing></outerBoundaryIs></Polygon></kml>", "beyond \\+-90"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("<kml><Placemark><Polygon>", "not valid KML/XML"),
+        (
+            "<kml><Placemark><name>x</name><Point><coordinates>4.85,45.77</coordinates></Point></Placemark></kml>",
+            "contains no area polygon",
+        ),
+        (
+            "<kml><Polygon><outerBoundaryIs><LinearRing><coordinates>a,b c,d</coordinates></LinearRing>"
+            "</outerBoundaryIs></Polygon></kml>",
+            "must be 'lon,lat",
+        ),
+        (
+            "<kml><Polygon><outerBoundaryIs><LinearRing><coordinates>45.7,4.8 45.8,4.8 45.8,94.9 45.7,4.8"
+            "</coordinates></LinearRing></outerBoundaryIs></Polygon></kml>",
+            "beyond \\+-90",
+        ),
+    ],
+)
 def test_kml_errors(tmp_path, text, message):
     path = tmp_path / "bad.kml"
     path.write_text(text)
@@ -93,8 +125,12 @@ def test_kml_errors(tmp_path, text, message):
 
 def plan_area() -> Area:
     lon, lat = PROJ.to_lonlat(45.0, 45.0)
-    return Area(to_lonlat(HOLED), nofly=[to_lonlat(shapely.box(2, 42, 8, 58))],
-                nofly_circles=[Circle(float(lat), float(lon), 6.0)], name="holed")
+    return Area(
+        to_lonlat(HOLED),
+        nofly=[to_lonlat(shapely.box(2, 42, 8, 58))],
+        nofly_circles=[Circle(float(lat), float(lon), 6.0)],
+        name="holed",
+    )
 
 
 def test_plan_written_is_a_qgc_plan():
@@ -142,8 +178,17 @@ def test_real_survey_plan_area_is_the_survey_polygon():
 
 def test_plan_inclusion_circle_is_area(tmp_path):
     lon, lat = PROJ.to_lonlat(0.0, 0.0)
-    plan = {"fileType": "Plan", "version": 1, "geoFence": {"polygons": [], "version": 2, "circles": [
-        {"circle": {"center": [float(lat), float(lon)], "radius": 100.0}, "inclusion": True, "version": 1}]}}
+    plan = {
+        "fileType": "Plan",
+        "version": 1,
+        "geoFence": {
+            "polygons": [],
+            "version": 2,
+            "circles": [
+                {"circle": {"center": [float(lat), float(lon)], "radius": 100.0}, "inclusion": True, "version": 1}
+            ],
+        },
+    }
     path = tmp_path / "circle.plan"
     path.write_text(json.dumps(plan))
     area = read_plan(path)
@@ -151,19 +196,35 @@ def test_plan_inclusion_circle_is_area(tmp_path):
     assert PROJ.geometry_to_metres(area.geometry).area == pytest.approx(np.pi * 100**2, rel=0.01)
 
 
-@pytest.mark.parametrize("plan, message", [
-    ({"fileType": "Mission"}, "not a QGroundControl plan"),
-    ({"fileType": "Plan", "geoFence": {"polygons": [], "circles": []}}, "contains no area polygon"),
-    ({"fileType": "Plan", "geoFence": {"polygons": [{"inclusion": True, "polygon": [
-        [149.165, -35.363], [149.166, -35.363], [149.166, -35.362]]}]}}, "beyond \\+-90.*swap"),
-    ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4]}}]}}, "radius"),
-    ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": -1}}]}},
-     "must be > 0"),
-    ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": 1e308}}]}},
-     "below 1000 km"),
-    ({"fileType": "Plan", "geoFence": {"polygons": True}}, "\"polygons\" must be a list"),
-    ({"fileType": "Plan", "mission": {"items": 3}}, "\"items\" must be a list"),
-])
+@pytest.mark.parametrize(
+    "plan, message",
+    [
+        ({"fileType": "Mission"}, "not a QGroundControl plan"),
+        ({"fileType": "Plan", "geoFence": {"polygons": [], "circles": []}}, "contains no area polygon"),
+        (
+            {
+                "fileType": "Plan",
+                "geoFence": {
+                    "polygons": [
+                        {"inclusion": True, "polygon": [[149.165, -35.363], [149.166, -35.363], [149.166, -35.362]]}
+                    ]
+                },
+            },
+            "beyond \\+-90.*swap",
+        ),
+        ({"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4]}}]}}, "radius"),
+        (
+            {"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": -1}}]}},
+            "must be > 0",
+        ),
+        (
+            {"fileType": "Plan", "geoFence": {"circles": [{"circle": {"center": [38.7, -77.4], "radius": 1e308}}]}},
+            "below 1000 km",
+        ),
+        ({"fileType": "Plan", "geoFence": {"polygons": True}}, '"polygons" must be a list'),
+        ({"fileType": "Plan", "mission": {"items": 3}}, '"items" must be a list'),
+    ],
+)
 def test_plan_errors(tmp_path, plan, message):
     path = tmp_path / "bad.plan"
     path.write_text(json.dumps(plan))

@@ -46,8 +46,11 @@ def test_hole_is_no_fly():
 def test_no_fly_feature_and_centre_rule(tmp_path):
     # A no-fly strip over the centres of column x = 1 (centres at x = 15 m), y from 0 to 32 m:
     # centres 5, 15, 25 are inside, 35 is not.
-    path = write_geojson(tmp_path / "a.geojson", feature(to_lonlat(SQUARE_60)),
-                         feature(to_lonlat(shapely.box(12, 0, 18, 32)), nofly=True))
+    path = write_geojson(
+        tmp_path / "a.geojson",
+        feature(to_lonlat(SQUARE_60)),
+        feature(to_lonlat(shapely.box(12, 0, 18, 32)), nofly=True),
+    )
     grid, _ = grid_of(load_area(path))
     assert blocked_cells(grid) == {(1, 0), (1, 1), (1, 2)}
 
@@ -111,7 +114,12 @@ def test_grid_file_round_trip(tmp_path):
     back = GeoGrid.load(grid.save(tmp_path / "grid.npz"))
     assert np.array_equal(back.blocked, grid.blocked)
     assert (back.proj, back.origin, back.rotation, back.cell, back.altitude) == (
-        grid.proj, grid.origin, grid.rotation, grid.cell, grid.altitude)
+        grid.proj,
+        grid.origin,
+        grid.rotation,
+        grid.cell,
+        grid.altitude,
+    )
     assert back.area_name == "holed.geojson"
     assert back.cell_to_latlon(4, 1) == grid.cell_to_latlon(4, 1)
     assert shapely.from_wkt(back.area_wkt).equals(shapely.from_wkt(grid.area_wkt))

@@ -22,7 +22,7 @@ CENTRES = [(0.0, 0.0), (-87.632384, 41.881895), (24.94, 60.17), (19.11, -34.11),
 FAST = settings(max_examples=150, deadline=None)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def square_grid(lon0: float, lat0: float, rotate_deg: float = 0.0):
     """A 5 km square (optionally rotated) at (lon0, lat0) gridded at 10 m."""
     proj = LocalProjection.centred_on((lon0, lat0, lon0, lat0))

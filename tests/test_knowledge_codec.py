@@ -10,15 +10,27 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.mavlink.knowledge_codec import (CELLS_PER_CHUNK, HEADER, MAX_DELTA_CELLS, MAX_DETECTIONS,
-                                              PAYLOAD_TYPE_BLOCK, PT_DELTA, PT_DETECTION, PT_DIGEST,
-                                              PT_REQUEST, BitmapChunk, KnowledgeCodec, chunk_mask,
-                                              digest_chunk_count, mission_id_from_name)
+from swarmctl.mavlink.knowledge_codec import (
+    CELLS_PER_CHUNK,
+    HEADER,
+    MAX_DELTA_CELLS,
+    MAX_DETECTIONS,
+    PAYLOAD_TYPE_BLOCK,
+    PT_DELTA,
+    PT_DETECTION,
+    PT_DIGEST,
+    PT_REQUEST,
+    KnowledgeCodec,
+    chunk_mask,
+    digest_chunk_count,
+    mission_id_from_name,
+)
 from swarmctl.world.knowledge import Delta, Detection, Knowledge
 
 grids = st.tuples(st.integers(1, 80), st.integers(1, 80))
-headers = st.fixed_dictionaries({"sender": st.integers(0, 255), "step": st.integers(0, 2**32 - 1),
-                                 "on_target": st.booleans()})
+headers = st.fixed_dictionaries(
+    {"sender": st.integers(0, 255), "step": st.integers(0, 2**32 - 1), "on_target": st.booleans()}
+)
 
 
 def _cell(draw, w, h):
@@ -44,9 +56,15 @@ def test_delta_round_trip_with_chunks(grid, head, data):
     rng = _rng(data)
     n = data.draw(st.integers(0, min(100, w * h)))
     flat = rng.choice(w * h, size=n, replace=False)
-    delta = Delta(head["sender"], head["step"], _cell(data.draw, w, h), head["on_target"],
-                  np.stack([flat // h, flat % h], axis=1), rng.integers(0, 256, n).astype(np.uint8),
-                  rng.random(n) < 0.3)
+    delta = Delta(
+        head["sender"],
+        head["step"],
+        _cell(data.draw, w, h),
+        head["on_target"],
+        np.stack([flat // h, flat % h], axis=1),
+        rng.integers(0, 256, n).astype(np.uint8),
+        rng.random(n) < 0.3,
+    )
     codec = KnowledgeCodec(data.draw(st.integers(0, 65535)), w, h)
     payloads, decoded = roundtrip(codec, delta)
     assert len(payloads) == max(1, -(-n // MAX_DELTA_CELLS))
@@ -148,6 +166,7 @@ def test_mission_ids_from_names_are_16_bit_and_stable():
 
 # ----- rejections ------------------------------------------------------------------------------------
 
+
 def _valid(codec):
     return codec.encode(Delta(2, 7, (1, 1), False, [(0, 0), (3, 4)], [10, 20], [False, True]))[0]
 
@@ -172,14 +191,29 @@ def _bad_payloads(codec):
         "version": [(pt, _patch(good, 0, "<B", 2))],
         "mission": [(pt, _patch(good, 1, "<H", 8))],
         "grid": [(pt, _patch(good, 8, "<B", 11))],
-        "chunks": [(pt, _patch(good, 12, "<B", 1)), (pt, _patch(good, 13, "<B", 0)),
-                   (pt, _patch(good, 13, "<B", 200)), (digest_pt, _patch(digest, 13, "<B", 2))],
-        "cell": [(pt, _patch(good, 14, "<B", 10)), (pt, _patch(good, 18, "<H", 100)),
-                 (list_pt, _patch(sparse, 18, "<H", 30)), (list_pt, _patch(sparse, 22, "<H", 100))],
+        "chunks": [
+            (pt, _patch(good, 12, "<B", 1)),
+            (pt, _patch(good, 13, "<B", 0)),
+            (pt, _patch(good, 13, "<B", 200)),
+            (digest_pt, _patch(digest, 13, "<B", 2)),
+        ],
+        "cell": [
+            (pt, _patch(good, 14, "<B", 10)),
+            (pt, _patch(good, 18, "<H", 100)),
+            (list_pt, _patch(sparse, 18, "<H", 30)),
+            (list_pt, _patch(sparse, 22, "<H", 100)),
+        ],
         "flags": [(pt, _patch(good, 16, "<B", 0x80)), (pt, _patch(good, 16, "<B", 0x04))],
-        "length": [(pt, _patch(good, 17, "<B", 3)), (pt, good[:-1]), (pt, good + b"\x01"), (PT_DETECTION, good),
-                   (PT_REQUEST, digest[:17]), (digest_pt, digest[:-1]),
-                   (list_pt, sparse[:-2]), (list_pt, _patch(sparse, 17, "<B", 4))],
+        "length": [
+            (pt, _patch(good, 17, "<B", 3)),
+            (pt, good[:-1]),
+            (pt, good + b"\x01"),
+            (PT_DETECTION, good),
+            (PT_REQUEST, digest[:17]),
+            (digest_pt, digest[:-1]),
+            (list_pt, sparse[:-2]),
+            (list_pt, _patch(sparse, 17, "<B", 4)),
+        ],
         "padding": [(digest_pt, digest[:-1] + b"\xff")],
     }
 
@@ -210,6 +244,7 @@ def test_payload_length_field_is_checked_against_the_bytes():
 
 
 # ----- MAVLink 2 frames ------------------------------------------------------------------------------
+
 
 def test_frames_are_real_mavlink2_tunnel_broadcasts():
     codec = KnowledgeCodec(7, 10, 10, system_id=3)

@@ -3,7 +3,7 @@ Nothing may raise; every payload is either rejected (counted) or a valid message
 
 import numpy as np
 
-from swarmctl.mavlink.knowledge_codec import (PAYLOAD_TYPE_BLOCK, BitmapChunk, KnowledgeCodec, chunk_mask)
+from swarmctl.mavlink.knowledge_codec import PAYLOAD_TYPE_BLOCK, BitmapChunk, KnowledgeCodec, chunk_mask
 from swarmctl.world.knowledge import Delta, Detection, Knowledge
 
 N_PAYLOADS = 100_000

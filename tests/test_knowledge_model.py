@@ -6,8 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarmctl.world.knowledge import (Delta, Detection, Knowledge, Position, dequantise_phi, disc_cells,
-                                      quantise_phi)
+from swarmctl.world.knowledge import Delta, Detection, Knowledge, Position, dequantise_phi, disc_cells, quantise_phi
 from tests.helpers import make_env
 
 W, H = 6, 5
@@ -18,10 +17,15 @@ def deltas(draw, width=W, height=H, senders=4):
     n = draw(st.integers(0, 8))
     cells = [(draw(st.integers(0, width - 1)), draw(st.integers(0, height - 1))) for _ in range(n)]
     cell = draw(st.one_of(st.none(), st.tuples(st.integers(0, width - 1), st.integers(0, height - 1))))
-    return Delta(draw(st.integers(0, senders - 1)), draw(st.integers(0, 6)), cell, draw(st.booleans()),
-                 np.array(cells, dtype=np.int64).reshape(-1, 2),
-                 np.array(draw(st.lists(st.integers(0, 255), min_size=n, max_size=n)), dtype=np.uint8),
-                 np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n)), dtype=bool))
+    return Delta(
+        draw(st.integers(0, senders - 1)),
+        draw(st.integers(0, 6)),
+        cell,
+        draw(st.booleans()),
+        np.array(cells, dtype=np.int64).reshape(-1, 2),
+        np.array(draw(st.lists(st.integers(0, 255), min_size=n, max_size=n)), dtype=np.uint8),
+        np.array(draw(st.lists(st.booleans(), min_size=n, max_size=n)), dtype=bool),
+    )
 
 
 @st.composite
@@ -152,8 +156,9 @@ def test_grid_checks():
 
 
 def _env_and_knowledge(channel):
-    env = make_env(12, targets=[(2, 2), (9, 9)], starts=[(1, 1), (6, 6)], obstacles=[(4, 4), (4, 5)],
-                   channel=channel, window=8)
+    env = make_env(
+        12, targets=[(2, 2), (9, 9)], starts=[(1, 1), (6, 6)], obstacles=[(4, 4), (4, 5)], channel=channel, window=8
+    )
     env.step(np.array([[2, 1]]))
     ks = []
     for v in range(2):

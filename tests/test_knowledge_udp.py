@@ -1,7 +1,6 @@
 """End to end over real UDP on 127.0.0.1: agents exchange knowledge through the loopback radio."""
 
 import socket
-import threading
 
 import numpy as np
 import pytest
@@ -12,7 +11,7 @@ from swarmctl.mavlink.knowledge_codec import KnowledgeCodec
 from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
 from swarmctl.mavlink.radio import Radio
 from swarmctl.world.channel import Channel
-from swarmctl.world.knowledge import Delta, Knowledge, quantise_phi
+from swarmctl.world.knowledge import Delta, Knowledge
 from tests.knowledge_helpers import Walkers, settle, swarm
 
 DIGEST_EVERY = 5
@@ -128,8 +127,10 @@ def test_duplicated_reordered_and_corrupted_packets_change_nothing_they_should_n
 
 def test_two_missions_on_one_radio_never_mix():
     with Radio(Channel("ideal")) as radio:
-        with swarm(2, 20, mission_id=100, radio=radio) as (_, blue), \
-                swarm(2, 20, mission_id=200, radio=radio) as (_, red):
+        with (
+            swarm(2, 20, mission_id=100, radio=radio) as (_, blue),
+            swarm(2, 20, mission_id=200, radio=radio) as (_, red),
+        ):
             wb, wr = Walkers(2, 20, seed=8), Walkers(2, 20, seed=9)
             for step in range(1, 6):
                 wb.move()

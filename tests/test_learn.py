@@ -75,16 +75,32 @@ def test_checkpoint_round_trip_and_validation(tmp_path):
         load_checkpoint(tmp_path / "missing.pt")
 
 
-@pytest.mark.parametrize("spec, needle", [("ddql", "give the checkpoint"), ("ddql:x.pt:tau=0", "tau"),
-                                          ("ddql:x.pt:tau=abc", "tau"), ("ddql-greedy:nope.pt", "no such")])
+@pytest.mark.parametrize(
+    "spec, needle",
+    [
+        ("ddql", "give the checkpoint"),
+        ("ddql:x.pt:tau=0", "tau"),
+        ("ddql:x.pt:tau=abc", "tau"),
+        ("ddql-greedy:nope.pt", "no such"),
+    ],
+)
 def test_bad_policy_specs(spec, needle):
     with pytest.raises(InputError, match=needle):
         make_ddql_policy(spec)
 
 
 def tiny_config(episodes):
-    return TrainConfig(episodes=episodes, parallel_envs=8, prefill_episodes=20, batch_size=64, lr=1e-3,
-                       target_update_every=100, eval_every=episodes, eval_episodes=100, threads=1)
+    return TrainConfig(
+        episodes=episodes,
+        parallel_envs=8,
+        prefill_episodes=20,
+        batch_size=64,
+        lr=1e-3,
+        target_update_every=100,
+        eval_every=episodes,
+        eval_episodes=100,
+        threads=1,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -159,7 +175,11 @@ def test_snapshots_keep_the_checkpoint_as_it_stood_at_each_count(tmp_path):
     first, info32 = load_checkpoint(snapshot_path(out, 32))
     second, info64 = load_checkpoint(snapshot_path(out, 64))
     last, info = load_checkpoint(out)
-    assert (info32["metadata"]["episodes"], info64["metadata"]["episodes"], info["metadata"]["episodes"]) == (32, 64, 96)
+    assert (info32["metadata"]["episodes"], info64["metadata"]["episodes"], info["metadata"]["episodes"]) == (
+        32,
+        64,
+        96,
+    )
     weights = [next(m.parameters()).detach().clone() for m in (first, second, last)]
     assert not torch.equal(weights[0], weights[1]) and not torch.equal(weights[1], weights[2])
     assert not snapshot_path(out, 96).exists()
@@ -193,8 +213,13 @@ def test_training_under_the_rules_hovers_and_never_leaves_the_map(monkeypatch, t
 
     def mask_spy(env):
         mask = real_mask(env)
-        calls.append({"hover": hovering(env).ravel().copy(), "pos": env.pos.reshape(-1, 2).copy(),
-                      "size": (env.width, env.height)})
+        calls.append(
+            {
+                "hover": hovering(env).ravel().copy(),
+                "pos": env.pos.reshape(-1, 2).copy(),
+                "size": (env.width, env.height),
+            }
+        )
         return mask
 
     def explore_spy(q, cfg, value, rng, allowed=None):

@@ -10,8 +10,17 @@ from hypothesis import strategies as st
 
 from swarmctl.cli import main
 from swarmctl.errors import InputError
-from swarmctl.mavlink.codec import (from_deg_e7, load_signing_key, ne_m, offset_m, parse_connection,
-                                    px4_decode, px4_encode, px4_mode_name, to_deg_e7)
+from swarmctl.mavlink.codec import (
+    from_deg_e7,
+    load_signing_key,
+    ne_m,
+    offset_m,
+    parse_connection,
+    px4_decode,
+    px4_encode,
+    px4_mode_name,
+    to_deg_e7,
+)
 
 lat_st = st.floats(min_value=-89.0, max_value=89.0, allow_nan=False)
 lon_st = st.floats(min_value=-180.0, max_value=180.0, allow_nan=False)
@@ -56,12 +65,15 @@ def test_local_offsets_invert(lat, lon, north, east):
     assert abs(n - north) < 1e-6 and abs(e - east) < 1e-6 * max(1.0, 1 / math.cos(math.radians(lat)))
 
 
-@pytest.mark.parametrize("text, kind, host, port", [
-    ("udpin:0.0.0.0:14550", "udpin", "0.0.0.0", 14550),
-    ("udp:127.0.0.1:14550", "udpin", "127.0.0.1", 14550),
-    ("udpout:10.0.0.2:14551", "udpout", "10.0.0.2", 14551),
-    ("tcp:localhost:5760", "tcp", "localhost", 5760),
-])
+@pytest.mark.parametrize(
+    "text, kind, host, port",
+    [
+        ("udpin:0.0.0.0:14550", "udpin", "0.0.0.0", 14550),
+        ("udp:127.0.0.1:14550", "udpin", "127.0.0.1", 14550),
+        ("udpout:10.0.0.2:14551", "udpout", "10.0.0.2", 14551),
+        ("tcp:localhost:5760", "tcp", "localhost", 5760),
+    ],
+)
 def test_connection_strings(text, kind, host, port):
     ep = parse_connection(text)
     assert (ep.kind, ep.host, ep.port) == (kind, host, port)
@@ -75,8 +87,10 @@ def test_serial_connection_and_mavsdk_urls():
     assert parse_connection("tcp:127.0.0.1:5760").mavsdk_url() == "tcpout://127.0.0.1:5760"
 
 
-@pytest.mark.parametrize("bad", ["", "udpin:14550", "udpout:host:port", "udpout:h:70000",
-                                 "tcp:h:0", "http://x:80", "foo", "/dev/ttyUSB0:fast"])
+@pytest.mark.parametrize(
+    "bad",
+    ["", "udpin:14550", "udpout:host:port", "udpout:h:70000", "tcp:h:0", "http://x:80", "foo", "/dev/ttyUSB0:fast"],
+)
 def test_bad_connection_strings_name_the_field_and_the_fix(bad):
     with pytest.raises(InputError) as err:
         parse_connection(bad, "--connect")
@@ -97,12 +111,15 @@ def test_signing_key_files(tmp_path):
         assert "--signing-key" in str(err.value) and "32 raw bytes" in str(err.value)
 
 
-@pytest.mark.parametrize("args, words", [
-    (["--connect", "udpout:127.0.0.1"], "--connect"),
-    (["--home", "north,south,0"], "--home"),
-    (["--sysid", "300"], "--sysid"),
-    (["--signing-key", "/nonexistent/key"], "--signing-key"),
-])
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--connect", "udpout:127.0.0.1"], "--connect"),
+        (["--home", "north,south,0"], "--home"),
+        (["--sysid", "300"], "--sysid"),
+        (["--signing-key", "/nonexistent/key"], "--signing-key"),
+    ],
+)
 def test_cli_bad_input_is_one_line_and_exit_2(args, words, capsys):
     assert main(["mock-vehicle", *args]) == 2
     err = capsys.readouterr().err

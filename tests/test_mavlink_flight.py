@@ -17,8 +17,9 @@ from tests.mavlink_support import HOME, mock_vehicles, our_threads, run
 LEGS = [(60.0, 0.0), (60.0, 60.0), (0.0, 60.0)]  # north/east metres from home, at 40 m
 
 
-async def fly_pattern(v: Vehicle, home: tuple[float, float, float], offset: float,
-                      legs: list[tuple[float, float]] = LEGS) -> list[float]:
+async def fly_pattern(
+    v: Vehicle, home: tuple[float, float, float], offset: float, legs: list[tuple[float, float]] = LEGS
+) -> list[float]:
     """Take off to 40 m, visit legs (shifted east by `offset`), land; return the miss at each leg."""
     await v.arm_and_takeoff(40.0, timeout=30)
     misses = []
@@ -36,6 +37,7 @@ async def fly_pattern(v: Vehicle, home: tuple[float, float, float], offset: floa
 
 def free_udp_port() -> int:
     import socket
+
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -50,16 +52,14 @@ def test_three_ardupilot_and_one_px4_fly_together():
         px4 = PX4Vehicle(f"udpin:127.0.0.1:{px4_port}", sysid=4, name="px4 4")
         vehicles: list[Vehicle] = []
         try:
-            specs = [dict(sysid=i + 1, connect=f"udpout:127.0.0.1:{links[i].local_port}")
-                     for i in range(3)]
+            specs = [dict(sysid=i + 1, connect=f"udpout:127.0.0.1:{links[i].local_port}") for i in range(3)]
             specs.append(dict(sysid=4, connect=f"udpout:127.0.0.1:{px4_port}", autopilot="px4"))
             with mock_vehicles(*specs) as mocks:
                 vehicles = [ArduPilotVehicle(links[i], i + 1) for i in range(3)]
                 await asyncio.gather(*(v.connect(10) for v in vehicles), px4.connect(10))
                 vehicles.append(px4)
                 start = time.monotonic()
-                results = await asyncio.gather(
-                    *(fly_pattern(v, HOME, 10.0 * i) for i, v in enumerate(vehicles)))
+                results = await asyncio.gather(*(fly_pattern(v, HOME, 10.0 * i) for i, v in enumerate(vehicles)))
                 took = time.monotonic() - start
                 batteries = [v.battery_remaining for v in vehicles]
                 assert all(b is not None and 50 < b < 100 for b in batteries), batteries
@@ -114,6 +114,7 @@ def test_position_targets_use_frame_6_and_type_mask_3576():
 @pytest.mark.slow
 def test_flight_survives_packet_loss_and_latency():
     loss = 0.15
+
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             spec = dict(sysid=5, connect=f"udpout:127.0.0.1:{link.local_port}", seed=1)
@@ -139,10 +140,27 @@ def test_mock_vehicle_command_runs_a_vehicle_in_its_own_process():
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             proc = subprocess.Popen(
-                [sys.executable, "-m", "swarmctl.cli", "mock-vehicle", "--sysid", "12",
-                 "--connect", f"udpout:127.0.0.1:{link.local_port}", "--home", ",".join(map(str, HOME)),
-                 "--speedup", "20", "--ready-after", "2", "--duration", "60"],
-                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+                [
+                    sys.executable,
+                    "-m",
+                    "swarmctl.cli",
+                    "mock-vehicle",
+                    "--sysid",
+                    "12",
+                    "--connect",
+                    f"udpout:127.0.0.1:{link.local_port}",
+                    "--home",
+                    ",".join(map(str, HOME)),
+                    "--speedup",
+                    "20",
+                    "--ready-after",
+                    "2",
+                    "--duration",
+                    "60",
+                ],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.PIPE,
+            )
             try:
                 v = ArduPilotVehicle(link, 12)
                 await v.connect(15)

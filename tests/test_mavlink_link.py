@@ -23,8 +23,7 @@ def no_leftover_threads():
 async def one_vehicle(link_kw=None, vehicle_kw=None, **mock_kw):
     """(link, vehicle, mock context) for one ArduCopter mock; the caller closes/exits them."""
     link = await MavlinkLink("udpin:127.0.0.1:0", **(link_kw or {})).open()
-    ctx = mock_vehicles(dict(sysid=mock_kw.pop("sysid", 1),
-                             connect=f"udpout:127.0.0.1:{link.local_port}", **mock_kw))
+    ctx = mock_vehicles(dict(sysid=mock_kw.pop("sysid", 1), connect=f"udpout:127.0.0.1:{link.local_port}", **mock_kw))
     return link, ctx
 
 
@@ -158,13 +157,13 @@ def test_gcs_failsafe_sends_the_vehicle_home_when_the_controller_goes_silent():
                 await v.connect(5)
                 await v.arm_and_takeoff(20, timeout=20)
                 from swarmctl.mavlink.codec import offset_m
+
                 await v.goto(*offset_m(HOME[0], HOME[1], 40, 0), 20)
                 await v.wait_reached(0.05, 10)
                 await v.close()
             finally:
                 await link.close()  # the controller's heartbeats stop here
-            ok = await asyncio.get_running_loop().run_in_executor(
-                None, m.wait_for, lambda mm: not mm.armed, 15)
+            ok = await asyncio.get_running_loop().run_in_executor(None, m.wait_for, lambda mm: not mm.armed, 15)
             return ok, m.state()
 
     ok, s = run(scenario())
@@ -186,7 +185,10 @@ def test_telemetry_is_requested_again_after_a_reboot():
                 peer = link.peers[1]
                 await link.wait_until(
                     lambda: peer.received_at.get("GLOBAL_POSITION_INT", 0) > t_reboot + 1.0,
-                    8, "position after reboot", "vehicle 1")
+                    8,
+                    "position after reboot",
+                    "vehicle 1",
+                )
                 after = count(m, MAV.MAV_CMD_SET_MESSAGE_INTERVAL)
                 await v.close()
                 return before, after
@@ -236,8 +238,7 @@ def test_signing_vehicle_accepts_only_signed_commands(tmp_path):
                         await link.wait_heartbeat(3, 5)
                         await m_ready(m)
                         try:
-                            await link.command(3, MAV.MAV_CMD_COMPONENT_ARM_DISARM, (1,),
-                                               timeout=0.3, retries=1)
+                            await link.command(3, MAV.MAV_CMD_COMPONENT_ARM_DISARM, (1,), timeout=0.3, retries=1)
                             result = "accepted"
                         except CommandTimeout:
                             result = "no answer"
@@ -264,8 +265,9 @@ def test_two_vehicles_on_one_link_commands_reach_only_the_addressed_one():
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             port = link.local_port
-            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{port}"),
-                               dict(sysid=2, connect=f"udpout:127.0.0.1:{port}")) as (m1, m2):
+            with mock_vehicles(
+                dict(sysid=1, connect=f"udpout:127.0.0.1:{port}"), dict(sysid=2, connect=f"udpout:127.0.0.1:{port}")
+            ) as (m1, m2):
                 v1, v2 = ArduPilotVehicle(link, 1), ArduPilotVehicle(link, 2)
                 await asyncio.gather(v1.connect(5), v2.connect(5))
                 await v2.wait_ready(10)
@@ -301,9 +303,11 @@ def test_px4_personality_refuses_offboard_without_a_setpoint_stream():
                 with pytest.raises(CommandRejected) as err:
                     await link.command(6, MAV.MAV_CMD_DO_SET_MODE, offboard)
                 for _ in range(5):  # a 10 Hz setpoint stream
-                    link.send(link.mav.set_position_target_local_ned_encode(
-                        0, 6, 1, MAV.MAV_FRAME_LOCAL_NED, 0b110111111000, 0, 0, -5, 0, 0, 0,
-                        0, 0, 0, 0, 0))
+                    link.send(
+                        link.mav.set_position_target_local_ned_encode(
+                            0, 6, 1, MAV.MAV_FRAME_LOCAL_NED, 0b110111111000, 0, 0, -5, 0, 0, 0, 0, 0, 0, 0, 0
+                        )
+                    )
                     await asyncio.sleep(0.1)
                 await link.command(6, MAV.MAV_CMD_DO_SET_MODE, offboard)
                 return hb, err.value, m.mode_name
@@ -319,6 +323,7 @@ def test_ardupilot_heartbeat_matches_the_sitl_log():
     """Values read from a real ArduCopter 4.7 SITL tlog (shared data, arducopter_sitl_guided_takeoff):
     type 2 (quadrotor), autopilot 3 (ArduPilot), base_mode 89 disarmed / 217 armed,
     custom_mode 4 in GUIDED, system_status 3 standby / 4 active, mavlink_version 3."""
+
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:
             with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")):
@@ -334,8 +339,14 @@ def test_ardupilot_heartbeat_matches_the_sitl_log():
                 return disarmed, armed, fresh
 
     disarmed, armed, fresh = run(scenario())
-    assert (disarmed.type, disarmed.autopilot, disarmed.base_mode, disarmed.custom_mode,
-            disarmed.system_status, disarmed.mavlink_version) == (2, 3, 89, 4, 3, 3)
+    assert (
+        disarmed.type,
+        disarmed.autopilot,
+        disarmed.base_mode,
+        disarmed.custom_mode,
+        disarmed.system_status,
+        disarmed.mavlink_version,
+    ) == (2, 3, 89, 4, 3, 3)
     assert (armed.base_mode, armed.system_status) == (217, 4)
     assert {"GLOBAL_POSITION_INT", "HOME_POSITION", "SYS_STATUS", "EXTENDED_SYS_STATE"} <= set(fresh)
     st = fresh["SYS_STATUS"]
@@ -361,8 +372,11 @@ def test_bad_bytes_are_counted_and_dropped_without_breaking_the_link():
             with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")):
                 await link.wait_heartbeat(1, 5)
                 with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                    for junk in (b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00" + bytes(11),
-                                 b"\xfe\x05garbage!", bytes(range(256))):
+                    for junk in (
+                        b"\xfd\x09\x00\x00\x00\x01\x01\x00\x00\x00" + bytes(11),
+                        b"\xfe\x05garbage!",
+                        bytes(range(256)),
+                    ):
                         s.sendto(junk, ("127.0.0.1", link.local_port))
                 await asyncio.sleep(0.3)
                 bad = link.stats.bad_data

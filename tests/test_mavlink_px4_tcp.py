@@ -36,8 +36,7 @@ def test_px4_arming_retried_then_rtl_and_link_loss_seen_through_mavsdk():
     async def scenario():
         v = PX4Vehicle(f"udpin:127.0.0.1:{port}", arm_retry_period=0.2)
         try:
-            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{port}",
-                                    autopilot="px4")) as (m,):
+            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{port}", autopilot="px4")) as (m,):
                 await v.connect(10)
                 await v.wait_ready(10)
                 m.refuse_arming("Preflight Fail: ekf2 missing data")
@@ -113,7 +112,7 @@ class TcpToUdpBridge:
             conn.close()
             return None
 
-    def __enter__(self) -> "TcpToUdpBridge":
+    def __enter__(self) -> TcpToUdpBridge:
         self.thread.start()
         return self
 
@@ -126,6 +125,7 @@ class TcpToUdpBridge:
 
 def test_tcp_link_flies_a_vehicle():
     with TcpToUdpBridge() as bridge:
+
         async def scenario():
             with mock_vehicles(dict(sysid=8, connect=f"udpout:127.0.0.1:{bridge.udp_port}")) as (m,):
                 async with MavlinkLink(f"tcp:127.0.0.1:{bridge.tcp_port}") as link:

@@ -43,9 +43,28 @@ def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, 
     gcs.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     gcs.bind(("127.0.0.1", 0))
     gcs.setblocking(False)
-    code = main(["demo", "--mission", str(mission), "--uavs", "3", "--seed", "4", "--speedup", "30",
-                 "--out", str(out), "--no-live", "--end-action", "hover", "--policy", policy,
-                 "--gcs", f"udpout:127.0.0.1:{gcs.getsockname()[1]}"])
+    code = main(
+        [
+            "demo",
+            "--mission",
+            str(mission),
+            "--uavs",
+            "3",
+            "--seed",
+            "4",
+            "--speedup",
+            "30",
+            "--out",
+            str(out),
+            "--no-live",
+            "--end-action",
+            "hover",
+            "--policy",
+            policy,
+            "--gcs",
+            f"udpout:127.0.0.1:{gcs.getsockname()[1]}",
+        ]
+    )
     assert code == 0, capsys.readouterr().err
     parser, seen = mavutil.mavlink.MAVLink(None), set()
     while True:
@@ -78,10 +97,32 @@ def test_sigterm_mid_mission_gives_every_vehicle_its_end_action_and_exits_130(tm
     mission = small_mission(tmp_path, time_limit="300.0")
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    proc = subprocess.Popen([sys.executable, "-m", "swarmctl.cli", "demo", "--mission", str(mission),
-                             "--uavs", "3", "--policy", "random", "--speedup", "30", "--out", str(out),
-                             "--no-live", "--end-action", "rtl"], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "swarmctl.cli",
+            "demo",
+            "--mission",
+            str(mission),
+            "--uavs",
+            "3",
+            "--policy",
+            "random",
+            "--speedup",
+            "30",
+            "--out",
+            str(out),
+            "--no-live",
+            "--end-action",
+            "rtl",
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         events = out / "events.jsonl"
         deadline = time.monotonic() + 120

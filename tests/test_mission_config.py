@@ -49,34 +49,39 @@ def test_a_good_mission_loads(tmp_path):
 
 
 def test_fence_is_a_switch(tmp_path):
-    m = load_mission(write(tmp_path, GOOD.replace('id = 9', 'id = 9\nfence = true', 1)))
+    m = load_mission(write(tmp_path, GOOD.replace("id = 9", "id = 9\nfence = true", 1)))
     assert m.fence is True
     with pytest.raises(InputError) as err:
-        load_mission(write(tmp_path, GOOD.replace('id = 9', 'id = 9\nfence = "yes"', 1)))
-    assert str(err.value) == (f"{tmp_path / 'm.toml'}: mission.fence must be true or false, not 'yes'; write "
-                              "fence = true to upload the search area's boundary to every vehicle as its "
-                              "geofence, or leave it out")
+        load_mission(write(tmp_path, GOOD.replace("id = 9", 'id = 9\nfence = "yes"', 1)))
+    assert str(err.value) == (
+        f"{tmp_path / 'm.toml'}: mission.fence must be true or false, not 'yes'; write "
+        "fence = true to upload the search area's boundary to every vehicle as its "
+        "geofence, or leave it out"
+    )
 
 
-@pytest.mark.parametrize("old, new, key", [
-    ('name = "test"', 'name = "test"\nspeed = 3', "mission.speed"),
-    ('grid = "grid.npz"', 'grid = "nope.npz"', "mission.grid"),
-    ('grid = "grid.npz"', '', "mission.grid"),
-    ('name = "bravo"', 'name = "alpha"', "vehicles[1].name"),
-    ('sysid = 2', 'sysid = 1', "vehicles[1].sysid"),
-    ('sysid = 2', 'sysid = 300', "vehicles[1].sysid"),
-    ('sysid = 2', 'sysid = "two"', "vehicles[1].sysid"),
-    ('autopilot = "px4"', 'autopilot = "inav"', "vehicles[1].autopilot"),
-    ('end_action = "land"', 'end_action = "crash"', "mission.end_action"),
-    ('policy = "la:4"', 'policy = "magic"', "mission.policy"),
-    ('policy = "la:4"', 'policy = "ddql:missing.pt"', "mission.policy"),
-    ('id = 9', 'id = 70000', "mission.id"),
-    ('id = 9', 'id = 9\ngcs = "udpin:0.0.0.0:14550"', "mission.gcs"),
-    ('id = 9', 'id = 9\ngcs = "udpout:nowhere"', "mission.gcs"),
-    ('id = 9', 'id = 9\nfence = 1', "mission.fence"),
-    ('connection = "udpin:127.0.0.1:14552"', 'connection = "carrier-pigeon:1"', "vehicles[1].connection"),
-    ('[knowledge]', '[knowledge]\nfoo = 1', "knowledge.foo"),
-])
+@pytest.mark.parametrize(
+    "old, new, key",
+    [
+        ('name = "test"', 'name = "test"\nspeed = 3', "mission.speed"),
+        ('grid = "grid.npz"', 'grid = "nope.npz"', "mission.grid"),
+        ('grid = "grid.npz"', "", "mission.grid"),
+        ('name = "bravo"', 'name = "alpha"', "vehicles[1].name"),
+        ("sysid = 2", "sysid = 1", "vehicles[1].sysid"),
+        ("sysid = 2", "sysid = 300", "vehicles[1].sysid"),
+        ("sysid = 2", 'sysid = "two"', "vehicles[1].sysid"),
+        ('autopilot = "px4"', 'autopilot = "inav"', "vehicles[1].autopilot"),
+        ('end_action = "land"', 'end_action = "crash"', "mission.end_action"),
+        ('policy = "la:4"', 'policy = "magic"', "mission.policy"),
+        ('policy = "la:4"', 'policy = "ddql:missing.pt"', "mission.policy"),
+        ("id = 9", "id = 70000", "mission.id"),
+        ("id = 9", 'id = 9\ngcs = "udpin:0.0.0.0:14550"', "mission.gcs"),
+        ("id = 9", 'id = 9\ngcs = "udpout:nowhere"', "mission.gcs"),
+        ("id = 9", "id = 9\nfence = 1", "mission.fence"),
+        ('connection = "udpin:127.0.0.1:14552"', 'connection = "carrier-pigeon:1"', "vehicles[1].connection"),
+        ("[knowledge]", "[knowledge]\nfoo = 1", "knowledge.foo"),
+    ],
+)
 def test_each_bad_key_is_named(tmp_path, old, new, key):
     p = write(tmp_path, GOOD.replace(old, new, 1))
     with pytest.raises(InputError) as err:

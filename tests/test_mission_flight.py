@@ -6,7 +6,6 @@ import json
 import time
 from collections import Counter
 
-import numpy as np
 import pytest
 from pymavlink import mavutil
 
@@ -84,8 +83,9 @@ def test_a_vehicle_losing_its_link_is_left_alone_and_the_others_finish(tmp_path)
     assert len({a.cell for a in others}) == 2
     ev = events(tmp_path)
     assert any(e["event"] == "state" and e["vehicle"] == "uav2" and e["state"] == "lost" for e in ev)
-    assert not any(e["event"] == "end_action" and e["vehicle"] == "uav2" and e["action"] != "none: link lost"
-                   for e in ev)
+    assert not any(
+        e["event"] == "end_action" and e["vehicle"] == "uav2" and e["action"] != "none: link lost" for e in ev
+    )
     assert not our_threads()
 
 
@@ -272,7 +272,7 @@ def test_a_vehicle_rebooted_mid_mission_gets_its_fence_on_again_before_it_rejoin
     kinds = [e.get("state", "fence") for e in mine]
     rejoin = kinds.index("rejoin")
     assert kinds.count("fence") == 2 and kinds.index("fence") < kinds.index("takeoff")
-    assert kinds[rejoin:rejoin + 3] == ["rejoin", "fence", "search"]
+    assert kinds[rejoin : rejoin + 3] == ["rejoin", "fence", "search"]
     assert all(e["uploaded"] for e in mine if e["event"] == "fence")
 
 

@@ -65,8 +65,7 @@ def test_obstacle_rules(seed, ep, scenario, eta):
 
 
 @settings(max_examples=150, deadline=None)
-@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.sampled_from([0.0, 0.1, 0.2]),
-       st.integers(1, 4))
+@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.sampled_from([0.0, 0.1, 0.2]), st.integers(1, 4))
 def test_starts_distinct_free_and_every_target_reachable_from_every_start(seed, ep, scenario, eta, uavs):
     cfg = WorldConfig(scenario=scenario, obstacles=eta, uavs=uavs)
     s = generate_scenario(cfg, seed, ep)
@@ -107,11 +106,18 @@ def test_fov_disc_has_29_cells_for_radius_3():
     assert ((off**2).sum(1) <= 9).all()
 
 
-@pytest.mark.parametrize("kwargs, name", [
-    (dict(map_size=0), "--map"), (dict(uavs=0), "--uavs"), (dict(targets=101), "--targets"),
-    (dict(obstacles=0.9), "--obstacles"), (dict(window=0), "--window"), (dict(map_size=3, uavs=9), "--uavs"),
-    (dict(clusters=5), "--clusters"),
-])
+@pytest.mark.parametrize(
+    "kwargs, name",
+    [
+        (dict(map_size=0), "--map"),
+        (dict(uavs=0), "--uavs"),
+        (dict(targets=101), "--targets"),
+        (dict(obstacles=0.9), "--obstacles"),
+        (dict(window=0), "--window"),
+        (dict(map_size=3, uavs=9), "--uavs"),
+        (dict(clusters=5), "--clusters"),
+    ],
+)
 def test_impossible_requests_name_the_parameter(kwargs, name):
     with pytest.raises(ScenarioError, match=name):
         WorldConfig(**kwargs)
@@ -132,8 +138,9 @@ def _random_map(seed: int, width: int, height: int) -> np.ndarray:
 
 
 @settings(max_examples=150, deadline=None)
-@given(seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.integers(12, 30), st.integers(12, 30),
-       st.integers(1, 4))
+@given(
+    seeds, episodes, st.sampled_from(["sparse", "cluster"]), st.integers(12, 30), st.integers(12, 30), st.integers(1, 4)
+)
 def test_episodes_on_a_fixed_map_keep_it_and_draw_in_its_largest_free_region(seed, ep, scenario, w, h, uavs):
     from swarmctl.world.paths import largest_free_region
 
@@ -158,7 +165,6 @@ def test_episodes_without_a_fixed_map_are_the_ones_they_always_were():
     s = generate_scenario(WorldConfig(scenario="sparse", obstacles=0.1, uavs=3), 0, 0)
     t = generate_scenario(WorldConfig(scenario="sparse", obstacles=0.1, uavs=3), 0, 0, None)
     assert (s.targets == t.targets).all() and (s.obstacles == t.obstacles).all() and (s.starts == t.starts).all()
-
 
 
 def test_a_fixed_map_too_small_for_the_episode_fails_naming_the_region():

@@ -85,8 +85,10 @@ def test_the_controllers_knowledge_removes_it_the_same_way():
     assert k.observation(window=env.cfg.window, rho=env.cfg.rho)[2][2, 2] == 1.0
 
 
-@pytest.mark.parametrize("spec, needle", [("ddql:x.pt:taken=drop", "taken must be remove or keep"),
-                                          ("ddql:x.pt:hover=maybe", "hover must be yes or no")])
+@pytest.mark.parametrize(
+    "spec, needle",
+    [("ddql:x.pt:taken=drop", "taken must be remove or keep"), ("ddql:x.pt:hover=maybe", "hover must be yes or no")],
+)
 def test_bad_ddql_options_are_named(spec, needle):
     with pytest.raises(InputError, match=needle):
         make_ddql_policy(spec)

@@ -32,10 +32,16 @@ def square_geojson(lon: float, lat: float, side: float) -> dict:
     h = side / 2
     lons, lats = proj.to_lonlat(np.array([-h, h, h, -h, -h]), np.array([-h, -h, h, h, -h]))
     ring = [[round(float(a), 7), round(float(b), 7)] for a, b in zip(lons, lats)]
-    props = {"name": "Chicago Loop, 500 m square centred on the OSM building sample",
-             "centre_lon": lon, "centre_lat": lat, "side_m": side}
-    return {"type": "FeatureCollection", "features": [
-        {"type": "Feature", "properties": props, "geometry": {"type": "Polygon", "coordinates": [ring]}}]}
+    props = {
+        "name": "Chicago Loop, 500 m square centred on the OSM building sample",
+        "centre_lon": lon,
+        "centre_lat": lat,
+        "side_m": side,
+    }
+    return {
+        "type": "FeatureCollection",
+        "features": [{"type": "Feature", "properties": props, "geometry": {"type": "Polygon", "coordinates": [ring]}}],
+    }
 
 
 def run() -> int:
@@ -45,8 +51,20 @@ def run() -> int:
     MISSION.mkdir(parents=True, exist_ok=True)
     area = MISSION / "area.geojson"
     area.write_text(json.dumps(square_geojson(lon, lat, SIDE), indent=1) + "\n", encoding="utf-8")
-    return main(["plan", str(area.relative_to(ROOT)), "--buildings", str(BUILDINGS.relative_to(ROOT)),
-                 "--cell", "10", "--altitude", "40", "--out", str(MISSION.relative_to(ROOT))])
+    return main(
+        [
+            "plan",
+            str(area.relative_to(ROOT)),
+            "--buildings",
+            str(BUILDINGS.relative_to(ROOT)),
+            "--cell",
+            "10",
+            "--altitude",
+            "40",
+            "--out",
+            str(MISSION.relative_to(ROOT)),
+        ]
+    )
 
 
 if __name__ == "__main__":

@@ -56,9 +56,19 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end))
             child.start()
             specs, radio = parent.recv()
-            plan = MissionPlan(name="overhead", mission_id=7, grid=grid, vehicles=specs, policy=policy,
-                               knowledge_peer=radio, seed=seed, step_period=0.0, step_timeout=10.0,
-                               telemetry_hz=20.0, **kw)
+            plan = MissionPlan(
+                name="overhead",
+                mission_id=7,
+                grid=grid,
+                vehicles=specs,
+                policy=policy,
+                knowledge_peer=radio,
+                seed=seed,
+                step_period=0.0,
+                step_timeout=10.0,
+                telemetry_hz=20.0,
+                **kw,
+            )
         rec = Recorder(tmp)
         controller = Controller(plan, rec)
         started = time.monotonic()
@@ -72,8 +82,15 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
                 parent.send("stop")
                 child.join(30)
         took = time.monotonic() - started
-        return dict(vehicles=size, policy=policy, mocks="same process" if same_process else "child process",
-                    outcome=outcome, wall_s=round(took, 1), steps=controller.step, **controller.overhead_ms())
+        return dict(
+            vehicles=size,
+            policy=policy,
+            mocks="same process" if same_process else "child process",
+            outcome=outcome,
+            wall_s=round(took, 1),
+            steps=controller.step,
+            **controller.overhead_ms(),
+        )
 
 
 def main() -> None:
@@ -83,22 +100,29 @@ def main() -> None:
     ap.add_argument("--search", type=float, default=20.0, help="seconds of search per size")
     ap.add_argument("--speedup", type=float, default=20.0)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--same-process", action="store_true",
-                    help="run the mocks in this process (they then compete for the interpreter lock)")
+    ap.add_argument(
+        "--same-process",
+        action="store_true",
+        help="run the mocks in this process (they then compete for the interpreter lock)",
+    )
     ap.add_argument("--out", type=Path, default=None, help="folder for controller_overhead.json/.txt")
     args = ap.parse_args()
     rows = [measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process) for n in args.sizes]
-    lines = [f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
-             f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
-             f"{'the same' if args.same_process else 'a child'} process",
-             "",
-             "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
-             "|---:|---:|---:|---:|---:|---:|---:|"]
+    lines = [
+        f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
+        f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
+        f"{'the same' if args.same_process else 'a child'} process",
+        "",
+        "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
+        "|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
-        lines.append(f"| {r['vehicles']} | {r.get('rounds', 0)} | {r.get('decide_mean', float('nan')):.1f} | "
-                     f"{r.get('cpu_mean', float('nan')):.1f} | "
-                     f"{r.get('controller_mean', float('nan')):.1f} | {r.get('controller_p95', float('nan')):.1f} | "
-                     f"{r.get('round_mean', float('nan')):.1f} |")
+        lines.append(
+            f"| {r['vehicles']} | {r.get('rounds', 0)} | {r.get('decide_mean', float('nan')):.1f} | "
+            f"{r.get('cpu_mean', float('nan')):.1f} | "
+            f"{r.get('controller_mean', float('nan')):.1f} | {r.get('controller_p95', float('nan')):.1f} | "
+            f"{r.get('round_mean', float('nan')):.1f} |"
+        )
     text = "\n".join(lines)
     print(text)
     if args.out is not None:

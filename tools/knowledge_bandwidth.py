@@ -73,9 +73,17 @@ def measure(vehicles: int, size: int, steps: int, loss: float, digest_every: int
                 a.close()
     mean = per_step.mean()
     swarm_peak = per_step.sum(1).max()
-    return {"vehicles": vehicles, "grid": f"{size} x {size}", "loss": loss, "mean": mean,
-            "peak": per_step.max(), "swarm_bps": mean * vehicles * 8, "swarm_peak_bps": swarm_peak * 8,
-            "explored": explored, "converged": converged}
+    return {
+        "vehicles": vehicles,
+        "grid": f"{size} x {size}",
+        "loss": loss,
+        "mean": mean,
+        "peak": per_step.max(),
+        "swarm_bps": mean * vehicles * 8,
+        "swarm_peak_bps": swarm_peak * 8,
+        "explored": explored,
+        "converged": converged,
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -87,19 +95,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--digest-every", type=int, default=5)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    print(f"{args.steps} steps at 1 step/s, digest every {args.digest_every} steps, lawnmower sweep; "
-          f"radio {RADIO_BPS / 1000:.1f} kbit/s shared by the swarm\n")
-    print("| grid | vehicles | loss | mean B/s per vehicle | peak B/s per vehicle | swarm mean kbit/s "
-          "| share of 57.6 kbit/s | busiest second, swarm kbit/s | explored | maps equal at end |")
+    print(
+        f"{args.steps} steps at 1 step/s, digest every {args.digest_every} steps, lawnmower sweep; "
+        f"radio {RADIO_BPS / 1000:.1f} kbit/s shared by the swarm\n"
+    )
+    print(
+        "| grid | vehicles | loss | mean B/s per vehicle | peak B/s per vehicle | swarm mean kbit/s "
+        "| share of 57.6 kbit/s | busiest second, swarm kbit/s | explored | maps equal at end |"
+    )
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | --- |")
     for size in args.grids:
         for n in args.vehicles:
             for loss in args.loss:
                 r = measure(n, size, args.steps, loss, args.digest_every, args.seed)
-                print(f"| {r['grid']} | {n} | {loss:.0%} | {r['mean']:.0f} | {r['peak']:.0f} | "
-                      f"{r['swarm_bps'] / 1000:.1f} | {r['swarm_bps'] / RADIO_BPS:.0%} | "
-                      f"{r['swarm_peak_bps'] / 1000:.1f} | {r['explored']:.0%} | "
-                      f"{'yes' if r['converged'] else 'no'} |", flush=True)
+                print(
+                    f"| {r['grid']} | {n} | {loss:.0%} | {r['mean']:.0f} | {r['peak']:.0f} | "
+                    f"{r['swarm_bps'] / 1000:.1f} | {r['swarm_bps'] / RADIO_BPS:.0%} | "
+                    f"{r['swarm_peak_bps'] / 1000:.1f} | {r['explored']:.0%} | "
+                    f"{'yes' if r['converged'] else 'no'} |",
+                    flush=True,
+                )
     return 0
 
 

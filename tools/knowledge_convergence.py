@@ -25,8 +25,9 @@ from swarmctl.world.knowledge import Knowledge, disc_cells  # noqa: E402
 from swarmctl.world.moves import MOVES  # noqa: E402
 
 
-def rounds_to_converge(vehicles: int, size: int, steps: int, loss: float, digest_every: int, seed: int,
-                       push: bool, max_rounds: int = 50) -> int:
+def rounds_to_converge(
+    vehicles: int, size: int, steps: int, loss: float, digest_every: int, seed: int, push: bool, max_rounds: int = 50
+) -> int:
     rng = np.random.default_rng(seed)
     phi, obstacle = rng.random((size, size)), rng.random((size, size)) < 0.1
     cells = [rng.integers(0, size, 2) for _ in range(vehicles)]
@@ -34,8 +35,9 @@ def rounds_to_converge(vehicles: int, size: int, steps: int, loss: float, digest
         agents: list[KnowledgeExchange] = []
         try:
             for v in range(vehicles):
-                agents.append(KnowledgeExchange(Knowledge(size, size, v), 1, radio.address,
-                                                digest_every=digest_every, push=push))
+                agents.append(
+                    KnowledgeExchange(Knowledge(size, size, v), 1, radio.address, digest_every=digest_every, push=push)
+                )
                 radio.add_peer(agents[-1].address, system_id=v + 1)
 
             def step(t: int, move: bool) -> None:
@@ -70,10 +72,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=100)
     args = ap.parse_args(argv)
     for push in (True, False):
-        hist = Counter(rounds_to_converge(args.vehicles, args.size, args.steps, args.loss, args.digest_every,
-                                          s, push) for s in range(args.seeds))
-        print(f"{'push + pull' if push else 'pull only'}: digest rounds after the last move -> runs: "
-              + ", ".join(f"{r}: {n}" for r, n in sorted(hist.items())), flush=True)
+        hist = Counter(
+            rounds_to_converge(args.vehicles, args.size, args.steps, args.loss, args.digest_every, s, push)
+            for s in range(args.seeds)
+        )
+        print(
+            f"{'push + pull' if push else 'pull only'}: digest rounds after the last move -> runs: "
+            + ", ".join(f"{r}: {n}" for r, n in sorted(hist.items())),
+            flush=True,
+        )
     return 0
 
 

@@ -1,7 +1,7 @@
 """Write a model card (Markdown) from a checkpoint and the `swarmctl eval --json` of it.
 
-    swarmctl eval ... --policy ddql:models/cluster-2uav.pt --policy la:4 ... --json models/cluster-2uav.eval.json
-    python tools/model_card.py models/cluster-2uav.pt models/cluster-2uav.eval.json --command "swarmctl train ..."
+swarmctl eval ... --policy ddql:models/cluster-2uav.pt --policy la:4 ... --json models/cluster-2uav.eval.json
+python tools/model_card.py models/cluster-2uav.pt models/cluster-2uav.eval.json --command "swarmctl train ..."
 """
 
 from __future__ import annotations
@@ -32,8 +32,11 @@ def main() -> None:
         f"The shared Q-network (76,509 parameters, the paper's 3 conv + 2 linear layers) trained with DDQL on the "
         f"**{world['scenario']}** scenario: {world['map_size']} x {world['map_size']} map, {world['uavs']} UAVs, "
         f"{world['targets']} targets, obstacles eta = {world['obstacles']}, window F = {world['window']}"
-        + (", trained on observations with taken targets removed (`--remove-taken`)." if world.get("remove_taken")
-           else "."),
+        + (
+            ", trained on observations with taken targets removed (`--remove-taken`)."
+            if world.get("remove_taken")
+            else "."
+        ),
         "",
         "## Training",
         "",
@@ -70,8 +73,10 @@ def main() -> None:
     ]
     for r in results:
         ratio = r["duration_ratio_to_oracle"]
-        lines.append(f"| {r['policy']} | {r['success_rate']:.3f} | {r['mean_steps']:.2f} | "
-                     f"{ratio:.2f} | {r['collisions_per_episode']:.3f} |")
+        lines.append(
+            f"| {r['policy']} | {r['success_rate']:.3f} | {r['mean_steps']:.2f} | "
+            f"{ratio:.2f} | {r['collisions_per_episode']:.3f} |"
+        )
     if args.notes:
         lines += ["", args.notes]
     out = args.checkpoint.with_suffix(".md")

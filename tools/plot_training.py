@@ -1,6 +1,6 @@
 """Plot a training run's metrics CSV (written next to the checkpoint by `swarmctl train`).
 
-    python tools/plot_training.py models/cluster-2uav.csv --out models/cluster-2uav.png [--la 0.87]
+python tools/plot_training.py models/cluster-2uav.csv --out models/cluster-2uav.png [--la 0.87]
 """
 
 from __future__ import annotations

@@ -13,10 +13,11 @@ The paper trains a separate model per count, each with its exploration annealed 
 That costs 2 x seeds x (sum of the counts) episodes, 50,000 for the full figure: 15-18 core-hours
 here. Snapshots of one run per seed cost 2 x seeds x (largest count), 30,000 episodes. The defaults
 (`--parallel 10 --updates-per-step 1.25`: one gradient step per 16 vehicle transitions, 37,500 per
-3000 episodes, the recipe of models/cluster-2uav.pt's first stage) took 45-57 min of training per run
-on one core with a second run beside it: 8.5 core-hours for the figure's 10 runs. A fifth of those gradient steps (`--updates-per-step 0.25`, 14 min
-per run) learns nothing in 3000 episodes: success 0.01-0.02 for both rules, seed 0. A snapshot taken
-early in a run was trained while exploration was still high, which the paper's protocol avoids.
+3000 episodes, the recipe of models/cluster-2uav.pt's first stage) took 45-57 min of training per
+run on one core with a second run beside it: 8.5 core-hours for the figure's 10 runs. A fifth of
+those gradient steps (`--updates-per-step 0.25`, 14 min per run) learns nothing in 3000 episodes:
+success 0.01-0.02 for both rules, seed 0. A snapshot taken early in a run was trained while
+exploration was still high, which the paper's protocol avoids.
 `--map 6 --targets 2 --episodes 20 40` gives a quick smoke run.
 """
 
@@ -52,8 +53,14 @@ def plot(results: dict, out: Path) -> None:
             continue
         s = np.array(runs)
         mean = s.mean(0)
-        ax.errorbar(counts, mean, yerr=[mean - s.min(0), s.max(0) - mean], fmt=style, capsize=3,
-                    label=f"DDQL {exploration} ({len(runs)} seed{'s' if len(runs) != 1 else ''}, min/max)")
+        ax.errorbar(
+            counts,
+            mean,
+            yerr=[mean - s.min(0), s.max(0) - mean],
+            fmt=style,
+            capsize=3,
+            label=f"DDQL {exploration} ({len(runs)} seed{'s' if len(runs) != 1 else ''}, min/max)",
+        )
     ax.axhline(results["la4_success"], color="k", lw=1, label="LA(4)")
     w = results["world"]
     ax.set_xlabel("training episodes")
@@ -66,8 +73,9 @@ def plot(results: dict, out: Path) -> None:
     plt.close(fig)
 
 
-def record(json_path: Path, exploration: str, seed: int, success: list, success_rules: list, wall: float,
-           train_config: dict) -> dict:
+def record(
+    json_path: Path, exploration: str, seed: int, success: list, success_rules: list, wall: float, train_config: dict
+) -> dict:
     """Add one run to training_curve.json under a lock, so jobs for different explorations can share it."""
     with open(json_path.with_suffix(".lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
@@ -106,28 +114,52 @@ def main() -> None:
         print(f"wrote {args.out / 'training_curve.png'}")
         return
 
-    world = WorldConfig(scenario=args.scenario, map_size=args.map, uavs=args.uavs, targets=args.targets,
-                        window=min(20, max(8, args.map)))
+    world = WorldConfig(
+        scenario=args.scenario,
+        map_size=args.map,
+        uavs=args.uavs,
+        targets=args.targets,
+        window=min(20, max(8, args.map)),
+    )
     counts = sorted(args.episodes)
     if any(n % args.parallel for n in counts):
         ap.error(f"--parallel {args.parallel} must divide every count in --episodes {counts}")
     results = json.loads(json_path.read_text()) if json_path.exists() else {}
     if results and (results.get("episodes") != counts or results.get("world") != world.as_dict()):
-        ap.error(f"{json_path} holds runs of another setting (episodes {results.get('episodes')}); "
-                 "use another --out, or the same --episodes and world options to add seeds to it")
+        ap.error(
+            f"{json_path} holds runs of another setting (episodes {results.get('episodes')}); "
+            "use another --out, or the same --episodes and world options to add seeds to it"
+        )
     if not results:
         la = evaluate(world, ["la:4"], args.eval_episodes, seed=0, steps=args.steps, progress=False)[0]
-        results = {"episodes": counts, "world": world.as_dict(), "steps": args.steps, "eval_seed": 0,
-                   "eval_episodes": args.eval_episodes, "la4_success": la["success_rate"], "runs": {},
-                   "runs_with_rules": {}, "seeds": {}, "train_config": None, "wall_s": {}}
+        results = {
+            "episodes": counts,
+            "world": world.as_dict(),
+            "steps": args.steps,
+            "eval_seed": 0,
+            "eval_episodes": args.eval_episodes,
+            "la4_success": la["success_rate"],
+            "runs": {},
+            "runs_with_rules": {},
+            "seeds": {},
+            "train_config": None,
+            "wall_s": {},
+        }
         json_path.write_text(json.dumps(results, indent=1))
     for seed in args.seeds:
         for exploration in args.explorations:
             if seed in results["seeds"].get(exploration, []):
                 continue  # finished in an earlier invocation
-            cfg = TrainConfig(episodes=counts[-1], parallel_envs=args.parallel, exploration=exploration,
-                              updates_per_step=args.updates_per_step, snapshots=tuple(counts),
-                              eval_every=counts[-1], eval_episodes=100, threads=args.threads)
+            cfg = TrainConfig(
+                episodes=counts[-1],
+                parallel_envs=args.parallel,
+                exploration=exploration,
+                updates_per_step=args.updates_per_step,
+                snapshots=tuple(counts),
+                eval_every=counts[-1],
+                eval_episodes=100,
+                threads=args.threads,
+            )
             path = args.out / f"{exploration}-s{seed}.pt"
             t0 = time.time()
             train(world, cfg, seed=seed, out=path, progress=False)
@@ -136,8 +168,8 @@ def main() -> None:
             paper = [f"ddql:{snapshot_path(path, n)}:taken=keep:hover=no:mask=no" for n in counts]
             ours = [f"ddql:{snapshot_path(path, n)}" for n in counts]
             rows = evaluate(world, paper + ours, args.eval_episodes, seed=0, steps=args.steps, progress=False)
-            success = [r["success_rate"] for r in rows[:len(counts)]]
-            success_rules = [r["success_rate"] for r in rows[len(counts):]]
+            success = [r["success_rate"] for r in rows[: len(counts)]]
+            success_rules = [r["success_rate"] for r in rows[len(counts) :]]
             train_config = {k: v for k, v in asdict(cfg).items() if k != "exploration"}
             results = record(json_path, exploration, seed, success, success_rules, wall, train_config)
             plot(results, args.out)

@@ -84,8 +84,11 @@ class Area:
     def describe(self) -> str:
         """One line: what the area is made of."""
         parts = [f"{len(self.polygons)} polygon(s)"]
-        for label, n in (("hole(s)", len(self.holes)), ("no-fly polygon(s)", len(self.nofly)),
-                         ("no-fly circle(s)", len(self.nofly_circles))):
+        for label, n in (
+            ("hole(s)", len(self.holes)),
+            ("no-fly polygon(s)", len(self.nofly)),
+            ("no-fly circle(s)", len(self.nofly_circles)),
+        ):
             if n:
                 parts.append(f"{n} {label}")
         if self.sources:
@@ -119,8 +122,7 @@ def load_area(path: str | Path) -> Area:
     suffix = path.suffix.lower()
     if suffix not in AREA_SUFFIXES:
         raise InputError(
-            f"{path}: unknown file type {suffix or '(no extension)'!r}; give a "
-            + ", ".join(AREA_SUFFIXES) + " file"
+            f"{path}: unknown file type {suffix or '(no extension)'!r}; give a " + ", ".join(AREA_SUFFIXES) + " file"
         )
     if suffix == ".kml":
         return read_kml(path)
@@ -194,8 +196,10 @@ def read_kml(path: Path) -> Area:
             shell = _kml_ring(outer[0], path, where)
             holes = [
                 _kml_ring(ring, path, f"{where} inner boundary")
-                for inner in poly if _local(inner.tag) == "innerBoundaryIs"
-                for ring in inner.iter() if _local(ring.tag) == "LinearRing"
+                for inner in poly
+                if _local(inner.tag) == "innerBoundaryIs"
+                for ring in inner.iter()
+                if _local(ring.tag) == "LinearRing"
             ]
             target.append((make_polygon(shell, holes, path, where), where))
     return build_area(area, nofly, path, sources={"KML polygon(s)": len(area)} if area else None)

@@ -36,28 +36,64 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
         )
     _, regions = grid.free_regions()
     largest = int(grid.largest_free_region().sum())
-    lines.append(f"largest connected free region: {largest} cells ({100 * largest / n:.1f} % of the grid, "
-                 f"{regions} free region(s) in all)")
+    lines.append(
+        f"largest connected free region: {largest} cells ({100 * largest / n:.1f} % of the grid, "
+        f"{regions} free region(s) in all)"
+    )
     return lines
 
 
 @click.command("plan")
 @click.argument("area", type=click.Path(path_type=Path))
-@click.option("--buildings", "buildings_file", type=click.Path(path_type=Path), default=None,
-              help="GeoJSON building footprints with height or levels.")
+@click.option(
+    "--buildings",
+    "buildings_file",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="GeoJSON building footprints with height or levels.",
+)
 @click.option("--cell", type=float, default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
-@click.option("--altitude", type=float, default=DEFAULT_ALTITUDE, show_default=True,
-              help="Flight altitude in metres relative to home.")
-@click.option("--margin", type=float, default=DEFAULT_MARGIN, show_default=True,
-              help="Safety margin in metres: buildings >= altitude - margin are obstacles.")
+@click.option(
+    "--altitude",
+    type=float,
+    default=DEFAULT_ALTITUDE,
+    show_default=True,
+    help="Flight altitude in metres relative to home.",
+)
+@click.option(
+    "--margin",
+    type=float,
+    default=DEFAULT_MARGIN,
+    show_default=True,
+    help="Safety margin in metres: buildings >= altitude - margin are obstacles.",
+)
 @click.option("--rotate", is_flag=True, help="Align the grid with the area's main axis.")
-@click.option("--unknown-height", type=click.Choice(UNKNOWN_RULES), default=UNKNOWN_RULES[0], show_default=True,
-              help="Buildings with no height: obstacles (block) or ignored.")
-@click.option("--max-cells", type=int, default=DEFAULT_MAX_CELLS, show_default=True,
-              help="Refuse grids with more cells than this.")
+@click.option(
+    "--unknown-height",
+    type=click.Choice(UNKNOWN_RULES),
+    default=UNKNOWN_RULES[0],
+    show_default=True,
+    help="Buildings with no height: obstacles (block) or ignored.",
+)
+@click.option(
+    "--max-cells",
+    type=int,
+    default=DEFAULT_MAX_CELLS,
+    show_default=True,
+    help="Refuse grids with more cells than this.",
+)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output folder.")
-def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude: float, margin: float,
-                 rotate: bool, unknown_height: str, max_cells: int, out_dir: Path) -> None:
+def plan_command(
+    area: Path,
+    buildings_file: Path | None,
+    cell: float,
+    altitude: float,
+    margin: float,
+    rotate: bool,
+    unknown_height: str,
+    max_cells: int,
+    out_dir: Path,
+) -> None:
     """Turn a search AREA (GeoJSON, KML or QGroundControl .plan) into a cell grid.
 
     Writes OUT/grid.npz (the grid the controller loads), OUT/grid.geojson (cells with a blocked
@@ -93,9 +129,12 @@ def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude:
         )
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
-        written = [grid.save(out_dir / "grid.npz"), write_grid_geojson(grid, out_dir / "grid.geojson"),
-                   write_plan(the_area, out_dir / "area.plan"),
-                   render_preview(grid, the_area, out_dir / "preview.png", bset, rule)]
+        written = [
+            grid.save(out_dir / "grid.npz"),
+            write_grid_geojson(grid, out_dir / "grid.geojson"),
+            write_plan(the_area, out_dir / "area.plan"),
+            render_preview(grid, the_area, out_dir / "preview.png", bset, rule),
+        ]
     except OSError as exc:
         raise InputError(
             f"{exc.filename or out_dir}: cannot write the output ({exc.strerror}); choose another --out"
@@ -107,6 +146,8 @@ def plan_command(area: Path, buildings_file: Path | None, cell: float, altitude:
     free = int((~grid.blocked).sum())
     unreachable = free - int(grid.largest_free_region().sum())
     if unreachable:
-        _warn(f"{unreachable} free cell(s) ({100 * unreachable / free:.1f} % of the free cells) cannot be reached "
-              "from the largest free region; vehicles starting there stay cut off")
+        _warn(
+            f"{unreachable} free cell(s) ({100 * unreachable / free:.1f} % of the free cells) cannot be reached "
+            "from the largest free region; vehicles starting there stay cut off"
+        )
     click.echo("wrote: " + ", ".join(str(p) for p in written))

@@ -18,8 +18,10 @@ def grid_geojson_text(grid: GeoGrid) -> str:
     instead of ten. Each corner is formatted once and shared by the four cells around it.
     """
     lat, lon = grid.corner_latlon()
-    pair = [[f"[{lon[i, j]:.{DECIMALS}f},{lat[i, j]:.{DECIMALS}f}]" for j in range(grid.height + 1)]
-            for i in range(grid.width + 1)]
+    pair = [
+        [f"[{lon[i, j]:.{DECIMALS}f},{lat[i, j]:.{DECIMALS}f}]" for j in range(grid.height + 1)]
+        for i in range(grid.width + 1)
+    ]
     flag = ("false", "true")
     blocked = grid.blocked.tolist()
     parts = []

@@ -30,8 +30,9 @@ from swarmctl.errors import InputError
 MAX_FENCE_VERTICES = 60  # ArduPilot keeps 84 fence points on a Pixhawk (depends on the board's storage)
 
 
-def fence_polygon(grid, margin: float | None = None,
-                  max_vertices: int = MAX_FENCE_VERTICES) -> list[tuple[float, float]]:
+def fence_polygon(
+    grid, margin: float | None = None, max_vertices: int = MAX_FENCE_VERTICES
+) -> list[tuple[float, float]]:
     """The inclusion fence of `grid` as (lat, lon) vertices, open ring (the first is not repeated).
 
     `margin`: metres the fence lies outside the area (default: one cell side).
@@ -68,11 +69,13 @@ def _area_metres(grid):
     else:
         xs, ys = np.nonzero(~grid.blocked)
         if len(xs) == 0:
-            raise InputError("the grid has no free cell, so there is no area to fence in; "
-                             "plan the grid again with `swarmctl plan`")
+            raise InputError(
+                "the grid has no free cell, so there is no area to fence in; plan the grid again with `swarmctl plan`"
+            )
         cells = shapely.box(xs, ys, xs + 1, ys + 1)
-        area = shapely.transform(shapely.union_all(cells),
-                                 lambda xy: np.column_stack(grid.grid_to_metres(xy[:, 0], xy[:, 1])))
+        area = shapely.transform(
+            shapely.union_all(cells), lambda xy: np.column_stack(grid.grid_to_metres(xy[:, 0], xy[:, 1]))
+        )
     parts = [Polygon(p.exterior) for p in getattr(area, "geoms", [area]) if isinstance(p, Polygon)]
     if not parts:
         raise InputError("the grid's area holds no polygon to fence in; plan the grid again with `swarmctl plan`")

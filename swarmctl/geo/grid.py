@@ -89,15 +89,13 @@ class GeoGrid:
         """Grid coordinates in cell units (cell (x, y) spans [x, x+1] x [y, y+1]) -> metres."""
         u = np.asarray(gx, dtype=float) * self.cell
         v = np.asarray(gy, dtype=float) * self.cell
-        return (self.origin[0] + self._cos * u - self._sin * v,
-                self.origin[1] + self._sin * u + self._cos * v)
+        return (self.origin[0] + self._cos * u - self._sin * v, self.origin[1] + self._sin * u + self._cos * v)
 
     def metres_to_grid(self, e, n):
         """Metres in the projection -> grid coordinates in cell units (floats)."""
         de = np.asarray(e, dtype=float) - self.origin[0]
         dn = np.asarray(n, dtype=float) - self.origin[1]
-        return ((self._cos * de + self._sin * dn) / self.cell,
-                (-self._sin * de + self._cos * dn) / self.cell)
+        return ((self._cos * de + self._sin * dn) / self.cell, (-self._sin * de + self._cos * dn) / self.cell)
 
     def geometry_to_grid(self, geom_metres):
         """A shapely geometry in projection metres -> the same in grid cell units."""
@@ -179,7 +177,7 @@ class GeoGrid:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "GeoGrid":
+    def load(cls, path: str | Path) -> GeoGrid:
         """Read a grid written by `save`, checking every field; a bad file raises InputError."""
         path = Path(path)
         if not path.is_file():
@@ -207,9 +205,19 @@ class GeoGrid:
         if blocked.dtype != bool or blocked.shape != shape or min(shape) < 1:
             raise InputError(f"{path}: grid mask is not a {shape[0]} x {shape[1]} bool array; {fix}")
         try:
-            grid = cls(proj, origin, numbers[0], numbers[1], blocked, numbers[2],
-                       str(meta.get("area_name", "")), str(meta.get("buildings_name", "")),
-                       str(meta.get("area_wkt", "")), str(meta.get("nofly_wkt", "")), dict(meta.get("info") or {}))
+            grid = cls(
+                proj,
+                origin,
+                numbers[0],
+                numbers[1],
+                blocked,
+                numbers[2],
+                str(meta.get("area_name", "")),
+                str(meta.get("buildings_name", "")),
+                str(meta.get("area_wkt", "")),
+                str(meta.get("nofly_wkt", "")),
+                dict(meta.get("info") or {}),
+            )
         except Exception as exc:  # pyproj.exceptions.CRSError and friends
             raise InputError(f"{path}: grid file has an unusable projection ({exc}); {fix}") from None
         return grid
@@ -292,15 +300,24 @@ def make_grid(
     u0, v0 = (umin + umax - w * cell) / 2.0, (vmin + vmax - h * cell) / 2.0
     a = math.radians(rotation)
     origin = (math.cos(a) * u0 - math.sin(a) * v0, math.sin(a) * u0 + math.cos(a) * v0)
-    grid = GeoGrid(proj.proj, origin, rotation, float(cell), np.zeros((w, h), bool), float(altitude),
-                   area_name=area.name, area_wkt=area.geometry.wkt)
+    grid = GeoGrid(
+        proj.proj,
+        origin,
+        rotation,
+        float(cell),
+        np.zeros((w, h), bool),
+        float(altitude),
+        area_name=area.name,
+        area_wkt=area.geometry.wkt,
+    )
     report = GridReport(unknown_rule=rule.unknown, threshold=rule.threshold)
 
     cx, cy = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5, indexing="ij")
     outside = ~shapely.contains_xy(grid.geometry_to_grid(outline_m), cx, cy)
     zones_m = [proj.geometry_to_metres(z) for z in area.holes + area.nofly]
-    zones_m += [shapely.Point(*proj.to_metres(c.lon, c.lat)).buffer(c.radius, CIRCLE_SEGMENTS)
-                for c in area.nofly_circles]
+    zones_m += [
+        shapely.Point(*proj.to_metres(c.lon, c.lat)).buffer(c.radius, CIRCLE_SEGMENTS) for c in area.nofly_circles
+    ]
     nofly = np.zeros_like(outside)
     missed = []
     for i, zone in enumerate(zones_m):
@@ -323,15 +340,23 @@ def make_grid(
     grid.blocked = outside | nofly | by_buildings
     report.outside, report.nofly, report.buildings = int(outside.sum()), int(nofly.sum()), int(by_buildings.sum())
     grid.info = {
-        "blocked_outside": report.outside, "blocked_nofly": report.nofly, "blocked_buildings": report.buildings,
-        "building_rule": {"threshold_m": rule.threshold, "margin_m": rule.margin, "unknown_height": rule.unknown,
-                          "metres_per_level": METRES_PER_LEVEL, "coverage": "footprint overlaps cell area"},
+        "blocked_outside": report.outside,
+        "blocked_nofly": report.nofly,
+        "blocked_buildings": report.buildings,
+        "building_rule": {
+            "threshold_m": rule.threshold,
+            "margin_m": rule.margin,
+            "unknown_height": rule.unknown,
+            "metres_per_level": METRES_PER_LEVEL,
+            "coverage": "footprint overlaps cell area",
+        },
     }
     return grid, report
 
 
-def _building_cells(grid: GeoGrid, proj: LocalProjection, area: Area, bset: BuildingSet,
-                    rule: BuildingRule, report: GridReport) -> np.ndarray:
+def _building_cells(
+    grid: GeoGrid, proj: LocalProjection, area: Area, bset: BuildingSet, rule: BuildingRule, report: GridReport
+) -> np.ndarray:
     """Cells overlapped (by a positive area) by a blocking footprint; fills the building counts."""
     report.buildings_total = len(bset.buildings)
     report.warnings.extend(bset.warnings)

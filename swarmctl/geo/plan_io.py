@@ -38,7 +38,7 @@ def circle_polygon(circle: Circle) -> Polygon:
 
 def _ring(coords: object, path: Path, where: str) -> np.ndarray:
     if not isinstance(coords, list):
-        raise InputError(f"{path}: {where}: \"polygon\" must be a list of [lat, lon] positions; fix the plan")
+        raise InputError(f'{path}: {where}: "polygon" must be a list of [lat, lon] positions; fix the plan')
     return lonlat_ring(coords, path, where, lat_first=True)
 
 
@@ -48,7 +48,7 @@ def _items(parent: dict, key: str, path: Path, where: str) -> list:
     if value is None:
         return []
     if not isinstance(value, list):
-        raise InputError(f"{path}: {where} \"{key}\" must be a list; fix the plan")
+        raise InputError(f'{path}: {where} "{key}" must be a list; fix the plan')
     return value
 
 
@@ -58,12 +58,12 @@ def read_plan(path: str | Path) -> Area:
     obj = read_json(path, "QGroundControl plan")
     if not isinstance(obj, dict) or obj.get("fileType") != "Plan":
         raise InputError(
-            f"{path}: not a QGroundControl plan (fileType is not \"Plan\"); save it from QGroundControl's Plan view"
+            f'{path}: not a QGroundControl plan (fileType is not "Plan"); save it from QGroundControl\'s Plan view'
         )
     fence = obj.get("geoFence") or {}
     mission = obj.get("mission") or {}
     if not isinstance(fence, dict) or not isinstance(mission, dict):
-        raise InputError(f"{path}: \"geoFence\" and \"mission\" must be JSON objects; fix the plan")
+        raise InputError(f'{path}: "geoFence" and "mission" must be JSON objects; fix the plan')
     area: list[tuple[Polygon, str]] = []
     nofly: list[tuple[Polygon, str]] = []
     circles: list[Circle] = []
@@ -85,7 +85,7 @@ def read_plan(path: str | Path) -> Area:
             radius = float(item["circle"]["radius"])
         except (KeyError, TypeError, ValueError, IndexError):
             raise InputError(
-                f"{path}: {where}: needs \"circle\": {{\"center\": [lat, lon], \"radius\": metres}}; fix the plan"
+                f'{path}: {where}: needs "circle": {{"center": [lat, lon], "radius": metres}}; fix the plan'
             ) from None
         lonlat_ring([[lat, lon]], path, where, lat_first=True)
         if not 0 < radius < MAX_RADIUS:

@@ -50,8 +50,9 @@ def _nice_length(span: float) -> float:
     return float(max(b * base for b in (1, 2, 5) if b * base <= target))
 
 
-def render_preview(grid: GeoGrid, area: Area, path: str | Path,
-                   buildings: BuildingSet | None = None, rule: BuildingRule | None = None) -> Path:
+def render_preview(
+    grid: GeoGrid, area: Area, path: str | Path, buildings: BuildingSet | None = None, rule: BuildingRule | None = None
+) -> Path:
     """Draw area outline, no-fly zones, buildings (by outcome), blocked cells and grid extent."""
     path = Path(path)
     proj, c = grid.projection, grid.cell
@@ -61,8 +62,16 @@ def render_preview(grid: GeoGrid, area: Area, path: str | Path,
 
     w_m, h_m = grid.width * c, grid.height * c
     fig, ax = plt.subplots(figsize=(8, 8 * min(1.6, max(0.6, h_m / w_m))), dpi=110)
-    ax.imshow(grid.blocked.T, origin="lower", extent=(0, w_m, 0, h_m), interpolation="nearest",
-              cmap=ListedColormap(["#ffffff", "#9e9e9e"]), vmin=0, vmax=1, zorder=0)
+    ax.imshow(
+        grid.blocked.T,
+        origin="lower",
+        extent=(0, w_m, 0, h_m),
+        interpolation="nearest",
+        cmap=ListedColormap(["#ffffff", "#9e9e9e"]),
+        vmin=0,
+        vmax=1,
+        zorder=0,
+    )
     if max(grid.width, grid.height) <= 80:
         ax.set_xticks(np.arange(0, w_m + c / 2, c), minor=True)
         ax.set_yticks(np.arange(0, h_m + c / 2, c), minor=True)
@@ -70,29 +79,54 @@ def render_preview(grid: GeoGrid, area: Area, path: str | Path,
     ax.add_patch(Rectangle((0, 0), w_m, h_m, fill=False, linestyle="--", edgecolor="#555555", linewidth=1))
     _draw(ax, frame(area.geometry), fill=False, edgecolor="black", linewidth=1.5, zorder=3)
     if grid.nofly_wkt:
-        _draw(ax, frame(shapely.from_wkt(grid.nofly_wkt)), facecolor="none", edgecolor=COLOURS["nofly"],
-              hatch="///", linewidth=1.2, zorder=3)
-    handles = [Rectangle((0, 0), 1, 1, facecolor="#9e9e9e", label="blocked cell"),
-               Rectangle((0, 0), 1, 1, fill=False, edgecolor="black", label="area")]
+        _draw(
+            ax,
+            frame(shapely.from_wkt(grid.nofly_wkt)),
+            facecolor="none",
+            edgecolor=COLOURS["nofly"],
+            hatch="///",
+            linewidth=1.2,
+            zorder=3,
+        )
+    handles = [
+        Rectangle((0, 0), 1, 1, facecolor="#9e9e9e", label="blocked cell"),
+        Rectangle((0, 0), 1, 1, fill=False, edgecolor="black", label="area"),
+    ]
     if grid.nofly_wkt:
-        handles.append(Rectangle((0, 0), 1, 1, facecolor="none", edgecolor=COLOURS["nofly"], hatch="///",
-                                 label="no-fly zone / hole"))
+        handles.append(
+            Rectangle(
+                (0, 0), 1, 1, facecolor="none", edgecolor=COLOURS["nofly"], hatch="///", label="no-fly zone / hole"
+            )
+        )
     if buildings is not None and buildings.buildings:
         rule = rule or BuildingRule(altitude=grid.altitude)
         groups: dict[str, list] = {"blocking": [], "low": [], "unknown": []}
         for b in buildings.buildings:
             kind = "unknown" if b.height is None else ("blocking" if rule.blocks(b.height) else "low")
             groups[kind].append(b.geometry)
-        labels = {"blocking": f"building >= {rule.threshold:g} m (obstacle)", "low": f"building < {rule.threshold:g} m",
-                  "unknown": f"building, height unknown ({'obstacle' if rule.unknown == 'block' else 'ignored'})"}
+        labels = {
+            "blocking": f"building >= {rule.threshold:g} m (obstacle)",
+            "low": f"building < {rule.threshold:g} m",
+            "unknown": f"building, height unknown ({'obstacle' if rule.unknown == 'block' else 'ignored'})",
+        }
         for kind, geoms in groups.items():
             if geoms:
-                _draw(ax, frame(shapely.union_all(geoms)), facecolor=COLOURS[kind], edgecolor=COLOURS[kind],
-                      alpha=0.55, linewidth=0.5, zorder=2)
+                _draw(
+                    ax,
+                    frame(shapely.union_all(geoms)),
+                    facecolor=COLOURS[kind],
+                    edgecolor=COLOURS[kind],
+                    alpha=0.55,
+                    linewidth=0.5,
+                    zorder=2,
+                )
                 handles.append(Rectangle((0, 0), 1, 1, facecolor=COLOURS[kind], alpha=0.55, label=labels[kind]))
     bar = _nice_length(w_m)
-    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", "lower right", pad=0.5, frameon=True,
-                                  size_vertical=max(h_m / 200, c / 10)))
+    ax.add_artist(
+        AnchoredSizeBar(
+            ax.transData, bar, f"{bar:g} m", "lower right", pad=0.5, frameon=True, size_vertical=max(h_m / 200, c / 10)
+        )
+    )
     pad = max(w_m, h_m) * 0.03
     ax.set_xlim(-pad, w_m + pad)
     ax.set_ylim(-pad, h_m + pad)
@@ -100,8 +134,11 @@ def render_preview(grid: GeoGrid, area: Area, path: str | Path,
     axis = "east" if grid.rotation == 0 else f"{grid.rotation:+.1f} deg from east"
     ax.set_xlabel(f"x: metres along the grid's x axis ({axis})")
     ax.set_ylabel("y: metres along the grid's y axis")
-    ax.set_title(f"{grid.area_name}: {grid.width} x {grid.height} cells of {c:g} m, "
-                 f"{100 * grid.blocked_fraction:.1f} % blocked, altitude {grid.altitude:g} m", fontsize=10)
+    ax.set_title(
+        f"{grid.area_name}: {grid.width} x {grid.height} cells of {c:g} m, "
+        f"{100 * grid.blocked_fraction:.1f} % blocked, altitude {grid.altitude:g} m",
+        fontsize=10,
+    )
     ax.legend(handles=handles, loc="upper left", fontsize=7, framealpha=0.85)
     fig.tight_layout()
     fig.savefig(path)

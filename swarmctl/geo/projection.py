@@ -43,7 +43,7 @@ class LocalProjection:
         object.__setattr__(self, "_inv", pyproj.Transformer.from_crs(crs, WGS84, always_xy=True))
 
     @classmethod
-    def centred_on(cls, bounds: tuple[float, float, float, float]) -> "LocalProjection":
+    def centred_on(cls, bounds: tuple[float, float, float, float]) -> LocalProjection:
         """Projection centred on a (min_lon, min_lat, max_lon, max_lat) bounding box."""
         min_lon, min_lat, max_lon, max_lat = bounds
         return cls(local_tmerc((min_lon + max_lon) / 2.0, (min_lat + max_lat) / 2.0))

@@ -84,9 +84,7 @@ def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False)
     try:
         arr = np.array([[float(v) for v in pt[:2]] for pt in coords], dtype=float)  # type: ignore[union-attr]
     except GEOMETRY_ERRORS:
-        raise InputError(
-            f"{path}: {where}: coordinates are not lists of numbers; fix the file's geometry"
-        ) from None
+        raise InputError(f"{path}: {where}: coordinates are not lists of numbers; fix the file's geometry") from None
     if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) == 0:
         raise InputError(f"{path}: {where}: each position needs two numbers; fix the file's geometry")
     if not np.all(np.isfinite(arr)):
@@ -159,7 +157,7 @@ def geojson_polygons(obj: object, path: Path) -> list[tuple[Polygon, dict, str, 
     types (points, lines) are skipped. Coordinates are checked with `lonlat_ring`.
     """
     if not isinstance(obj, dict) or "type" not in obj:
-        raise InputError(f"{path}: not a GeoJSON object (no \"type\" member); export the data as GeoJSON")
+        raise InputError(f'{path}: not a GeoJSON object (no "type" member); export the data as GeoJSON')
     check_geojson_crs(obj, path)
     out: list[tuple[Polygon, dict, str, int]] = []
 
@@ -190,7 +188,7 @@ def geojson_polygons(obj: object, path: Path) -> list[tuple[Polygon, dict, str, 
     if kind == "FeatureCollection":
         feats = obj.get("features")
         if not isinstance(feats, list):
-            raise InputError(f"{path}: FeatureCollection without a \"features\" list; fix the file")
+            raise InputError(f'{path}: FeatureCollection without a "features" list; fix the file')
         for i, f in enumerate(feats):
             if not isinstance(f, dict):
                 raise InputError(f"{path}: feature {i} is not a JSON object; fix the file")

@@ -20,11 +20,20 @@ def format_table(results: list[dict]) -> str:
     for r in results:
         ms = r["decision_ms_per_vehicle"]
         ratio = r["duration_ratio_to_oracle"]
-        rows.append((r["policy"], f"{r['success_rate']:.3f}", f"{r['mean_steps']:.2f}",
-                     f"{ratio:.2f}" if ratio is not None else "-", f"{r['collisions_per_episode']:.3f}",
-                     f"{ms:.3f}" if ms is not None else "-"))
+        rows.append(
+            (
+                r["policy"],
+                f"{r['success_rate']:.3f}",
+                f"{r['mean_steps']:.2f}",
+                f"{ratio:.2f}" if ratio is not None else "-",
+                f"{r['collisions_per_episode']:.3f}",
+                f"{ms:.3f}" if ms is not None else "-",
+            )
+        )
     widths = [max(len(str(x)) for x in col) for col in zip(head, *rows)]
-    line = lambda cells: "  ".join(str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+    line = lambda cells: "  ".join(
+        str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
+    )
     return "\n".join([line(head), line(["-" * w for w in widths]), *map(line, rows)])
 
 
@@ -33,14 +42,29 @@ def format_table(results: list[dict]) -> str:
 @click.option("--steps", type=int, default=40, show_default=True, help="Step limit N of a test episode.")
 @click.option("--episodes", type=int, default=500, show_default=True, help="Test episodes E.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Episode seed: same seed, same episodes.")
-@click.option("--policy", "policies", multiple=True, required=True, metavar="POLICY",
-              help=f"Repeatable; all run on the same episodes. One of: {POLICY_HELP}.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path),
-              help='Write {"results": [...]} with success_rate, mean_steps, steps_cdf, ...')
-@click.option("--grid", "grid_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="Play every episode on this real area's grid (from `swarmctl plan`): its blocked cells are the "
-                   "obstacles, targets and starts are drawn by the scenario's rules in its largest free region; "
-                   "--map and --obstacles do not apply.")
+@click.option(
+    "--policy",
+    "policies",
+    multiple=True,
+    required=True,
+    metavar="POLICY",
+    help=f"Repeatable; all run on the same episodes. One of: {POLICY_HELP}.",
+)
+@click.option(
+    "--json",
+    "json_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help='Write {"results": [...]} with success_rate, mean_steps, steps_cdf, ...',
+)
+@click.option(
+    "--grid",
+    "grid_file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Play every episode on this real area's grid (from `swarmctl plan`): its blocked cells are the "
+    "obstacles, targets and starts are drawn by the scenario's rules in its largest free region; "
+    "--map and --obstacles do not apply.",
+)
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on a terminal.")
 def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress, **kwargs):
     """Evaluate policies: success rate, mean episode duration, duration CDF, against the oracle bound."""
@@ -59,9 +83,11 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress
     if grid_file is not None:
         for r in results:
             r["scenario"]["grid"] = str(grid_file)
-    click.echo(f"{cfg.scenario}, {where}, U={cfg.uavs}, K={cfg.targets}"
-               + (f", eta={cfg.obstacles}" if grid_file is None else "")
-               + f", N={steps}, {episodes} episodes, seed {seed}, channel {cfg.channel}")
+    click.echo(
+        f"{cfg.scenario}, {where}, U={cfg.uavs}, K={cfg.targets}"
+        + (f", eta={cfg.obstacles}" if grid_file is None else "")
+        + f", N={steps}, {episodes} episodes, seed {seed}, channel {cfg.channel}"
+    )
     click.echo(format_table(results))
     if json_path is not None:
         json_path.parent.mkdir(parents=True, exist_ok=True)
@@ -73,23 +99,51 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress
 @world_options
 @click.option("--episodes", type=int, default=3000, show_default=True, help="Training episodes N_e.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed: same seed, same machine, same model.")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), required=True,
-              help="Checkpoint to write, e.g. models/cluster-2uav.pt (metrics go next to it as .csv).")
-@click.option("--init", type=click.Path(dir_okay=False, path_type=Path),
-              help="Start from this checkpoint (transfer learning).")
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Checkpoint to write, e.g. models/cluster-2uav.pt (metrics go next to it as .csv).",
+)
+@click.option(
+    "--init", type=click.Path(dir_okay=False, path_type=Path), help="Start from this checkpoint (transfer learning)."
+)
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True)
 @click.option("--exploration", type=click.Choice(["softmax", "egreedy"]), default="softmax", show_default=True)
-@click.option("--temperature", nargs=2, type=float, default=(1.0, 0.1), show_default=True,
-              metavar="START END", help="Softmax exploration temperature, annealed linearly over the run.")
-@click.option("--epsilon", nargs=2, type=float, default=(1.0, 0.0), show_default=True,
-              metavar="START END", help="Epsilon-greedy exploration, annealed linearly over the run.")
-@click.option("--rules/--no-rules", default=False, show_default=True,
-              help="Explore and evaluate under the deployment rules of ddql:PATH (hover on a free target, no move "
-                   "off the map or into a known obstacle); --no-rules is the paper.")
+@click.option(
+    "--temperature",
+    nargs=2,
+    type=float,
+    default=(1.0, 0.1),
+    show_default=True,
+    metavar="START END",
+    help="Softmax exploration temperature, annealed linearly over the run.",
+)
+@click.option(
+    "--epsilon",
+    nargs=2,
+    type=float,
+    default=(1.0, 0.0),
+    show_default=True,
+    metavar="START END",
+    help="Epsilon-greedy exploration, annealed linearly over the run.",
+)
+@click.option(
+    "--rules/--no-rules",
+    default=False,
+    show_default=True,
+    help="Explore and evaluate under the deployment rules of ddql:PATH (hover on a free target, no move "
+    "off the map or into a known obstacle); --no-rules is the paper.",
+)
 @click.option("--parallel", type=int, default=16, show_default=True, help="Episodes stepped together.")
 @click.option("--batch-size", type=int, default=64, show_default=True)
-@click.option("--updates-per-step", type=float, default=1.0, show_default=True,
-              help="Gradient steps per joint step of the parallel episodes.")
+@click.option(
+    "--updates-per-step",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="Gradient steps per joint step of the parallel episodes.",
+)
 @click.option("--lr", type=float, default=5e-4, show_default=True, help="RAdam learning rate.")
 @click.option("--prefill", type=int, default=1000, show_default=True, help="Random episodes in the replay first.")
 @click.option("--replay", "replay_capacity", type=int, default=100_000, show_default=True, help="Replay capacity.")
@@ -97,13 +151,40 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress
 @click.option("--plain-target", is_flag=True, help="Use the plain target-network target, not double DQN.")
 @click.option("--eval-every", type=int, default=250, show_default=True, help="Episodes between evaluations.")
 @click.option("--eval-episodes", type=int, default=200, show_default=True)
-@click.option("--eval-steps", type=int, default=40, show_default=True,
-              help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).")
+@click.option(
+    "--eval-steps",
+    type=int,
+    default=40,
+    show_default=True,
+    help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).",
+)
 @click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
 @click.option("--progress/--no-progress", default=True)
-def train_command(episodes, seed, out, init, device, exploration, temperature, epsilon, rules, parallel, batch_size, updates_per_step, lr, prefill,
-                  replay_capacity, target_every, plain_target, eval_every, eval_episodes, eval_steps, threads, progress,
-                  **kwargs):
+def train_command(
+    episodes,
+    seed,
+    out,
+    init,
+    device,
+    exploration,
+    temperature,
+    epsilon,
+    rules,
+    parallel,
+    batch_size,
+    updates_per_step,
+    lr,
+    prefill,
+    replay_capacity,
+    target_every,
+    plain_target,
+    eval_every,
+    eval_episodes,
+    eval_steps,
+    threads,
+    progress,
+    **kwargs,
+):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
     import torch
 
@@ -118,8 +199,10 @@ def train_command(episodes, seed, out, init, device, exploration, temperature, e
     require(prefill >= 0, f"--prefill {prefill} must be >= 0")
     require(replay_capacity >= batch_size, f"--replay {replay_capacity} must hold at least one batch ({batch_size})")
     require(target_every >= 1, f"--target-every {target_every} must be >= 1")
-    require(eval_every >= 1 and eval_episodes >= 1 and eval_steps >= 1,
-            "--eval-every, --eval-episodes and --eval-steps must be >= 1")
+    require(
+        eval_every >= 1 and eval_episodes >= 1 and eval_steps >= 1,
+        "--eval-every, --eval-episodes and --eval-steps must be >= 1",
+    )
     require(threads >= 1, f"--threads {threads} must be >= 1")
     require(min(temperature) > 0, f"--temperature {temperature[0]} {temperature[1]}: temperatures must be > 0")
     require(all(0 <= e <= 1 for e in epsilon), f"--epsilon {epsilon[0]} {epsilon[1]}: epsilons must be in [0, 1]")
@@ -129,14 +212,31 @@ def train_command(episodes, seed, out, init, device, exploration, temperature, e
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
-    cfg = TrainConfig(episodes=episodes, parallel_envs=parallel, batch_size=batch_size,
-                      updates_per_step=updates_per_step, lr=lr, prefill_episodes=prefill,
-                      replay_capacity=replay_capacity, target_update_every=target_every, double=not plain_target,
-                      exploration=exploration, rules=rules, temperature_start=temperature[0], temperature_end=temperature[1],
-                      epsilon_start=epsilon[0], epsilon_end=epsilon[1], eval_every=eval_every, eval_episodes=eval_episodes,
-                      eval_steps=eval_steps, threads=threads)
+    cfg = TrainConfig(
+        episodes=episodes,
+        parallel_envs=parallel,
+        batch_size=batch_size,
+        updates_per_step=updates_per_step,
+        lr=lr,
+        prefill_episodes=prefill,
+        replay_capacity=replay_capacity,
+        target_update_every=target_every,
+        double=not plain_target,
+        exploration=exploration,
+        rules=rules,
+        temperature_start=temperature[0],
+        temperature_end=temperature[1],
+        epsilon_start=epsilon[0],
+        epsilon_end=epsilon[1],
+        eval_every=eval_every,
+        eval_episodes=eval_episodes,
+        eval_steps=eval_steps,
+        threads=threads,
+    )
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
     final = meta["final_eval"] or {}
-    click.echo(f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
-               f"held-out success {final.get('success_rate', float('nan')):.3f}, "
-               f"mean steps {final.get('mean_steps', float('nan')):.2f}")
+    click.echo(
+        f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
+        f"held-out success {final.get('success_rate', float('nan')):.3f}, "
+        f"mean steps {final.get('mean_steps', float('nan')):.2f}"
+    )

@@ -71,8 +71,9 @@ class TrainConfig:
         return self.epsilon_start + (self.epsilon_end - self.epsilon_start) * progress
 
 
-def explore(q: np.ndarray, cfg: TrainConfig, value: float, rng: np.random.Generator,
-            allowed: np.ndarray | None = None) -> np.ndarray:
+def explore(
+    q: np.ndarray, cfg: TrainConfig, value: float, rng: np.random.Generator, allowed: np.ndarray | None = None
+) -> np.ndarray:
     """Exploratory actions for Q-values q (N, 5), among the `allowed` (N, 5) moves when given."""
     if allowed is not None:
         q = np.where(allowed, q, -np.inf)
@@ -93,8 +94,13 @@ def rule_mask(env: SearchEnv) -> np.ndarray:
 
 def git_commit() -> str:
     try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              check=True, cwd=Path(__file__).parent).stdout.strip()
+        return subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+            cwd=Path(__file__).parent,
+        ).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return "unknown"
 
@@ -132,15 +138,25 @@ def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: tor
     return {"success_rate": float(env.done.mean()), "mean_steps": float(duration.mean())}
 
 
-def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path | None = None,
-          device: str = "cpu", progress: bool = True, metrics_path: Path | None = None) -> dict:
+def train(
+    world: WorldConfig,
+    cfg: TrainConfig,
+    seed: int,
+    out: Path,
+    init: Path | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    metrics_path: Path | None = None,
+) -> dict:
     """Train the shared Q-network; writes the checkpoint to `out` (and the one of the best held-out
     evaluation to best_path(out)) and returns its metadata."""
     start_time = time.time()
     unreachable = [n for n in cfg.snapshots if n != cfg.episodes and (n % cfg.parallel_envs or n > cfg.episodes)]
     if unreachable:
-        raise ValueError(f"snapshots {unreachable}: a snapshot is taken between rounds of {cfg.parallel_envs} "
-                         f"parallel episodes, so it must be a multiple of that, at most {cfg.episodes}")
+        raise ValueError(
+            f"snapshots {unreachable}: a snapshot is taken between rounds of {cfg.parallel_envs} "
+            f"parallel episodes, so it must be a multiple of that, at most {cfg.episodes}"
+        )
     torch.manual_seed(seed)
     torch.set_num_threads(cfg.threads)
     dev = torch.device(device)
@@ -178,8 +194,20 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
     metrics_path.parent.mkdir(parents=True, exist_ok=True)
     metrics_file = open(metrics_path, "w", newline="")
     writer = csv.writer(metrics_file)
-    writer.writerow(["episodes", "joint_steps", "samples", "updates", "loss", "exploration", "train_success",
-                     "eval_success", "eval_mean_steps", "wall_s"])
+    writer.writerow(
+        [
+            "episodes",
+            "joint_steps",
+            "samples",
+            "updates",
+            "loss",
+            "exploration",
+            "train_success",
+            "eval_success",
+            "eval_mean_steps",
+            "wall_s",
+        ]
+    )
     evals: list[dict] = []
     episodes_done, joint_steps, samples, updates, update_credit = 0, 0, 0, 0, 0.0
 
@@ -187,12 +215,22 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
         """Write the checkpoint as it stands (at every evaluation and at the end)."""
         wall = time.time() - start_time
         metadata = {
-            "scenario": world.scenario, "episodes": episodes_done, "episodes_planned": cfg.episodes, "seed": seed,
-            "git_commit": git_commit(), "wall_time_s": round(wall, 1), "samples": samples,
-            "joint_steps": joint_steps, "updates": updates, "samples_per_s": round(samples / max(wall, 1e-9), 1),
-            "evals": evals, "final_eval": evals[-1] if evals else None, "init": str(init) if init else None,
+            "scenario": world.scenario,
+            "episodes": episodes_done,
+            "episodes_planned": cfg.episodes,
+            "seed": seed,
+            "git_commit": git_commit(),
+            "wall_time_s": round(wall, 1),
+            "samples": samples,
+            "joint_steps": joint_steps,
+            "updates": updates,
+            "samples_per_s": round(samples / max(wall, 1e-9), 1),
+            "evals": evals,
+            "final_eval": evals[-1] if evals else None,
+            "init": str(init) if init else None,
             "init_metadata": init_info["metadata"] if init_info else None,
-            "torch": str(torch.__version__), "device": str(dev),
+            "torch": str(torch.__version__),
+            "device": str(dev),
         }
         save_checkpoint(out, copy.deepcopy(q_net).cpu(), world.as_dict(), asdict(cfg), metadata)
         return metadata
@@ -262,13 +300,28 @@ def train(world: WorldConfig, cfg: TrainConfig, seed: int, out: Path, init: Path
             if max(evals, key=_eval_rank) is evals[-1]:  # the best so far on the held-out episodes
                 shutil.copyfile(out, best_path(out))
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
-        writer.writerow([episodes_done, joint_steps, samples, updates, f"{mean_loss:.5f}", f"{explore_value:.4f}",
-                         f"{np.mean(recent_success):.3f}", eval_row.get("success_rate", ""),
-                         eval_row.get("mean_steps", ""), f"{wall:.1f}"])
+        writer.writerow(
+            [
+                episodes_done,
+                joint_steps,
+                samples,
+                updates,
+                f"{mean_loss:.5f}",
+                f"{explore_value:.4f}",
+                f"{np.mean(recent_success):.3f}",
+                eval_row.get("success_rate", ""),
+                eval_row.get("mean_steps", ""),
+                f"{wall:.1f}",
+            ]
+        )
         metrics_file.flush()
         bar.update(p)
-        bar.set_postfix(samples_s=f"{samples / max(wall, 1e-9):.0f}", success=f"{np.mean(recent_success):.2f}",
-                        loss=f"{mean_loss:.4f}", eval=f"{evals[-1]['success_rate']:.2f}" if evals else "-")
+        bar.set_postfix(
+            samples_s=f"{samples / max(wall, 1e-9):.0f}",
+            success=f"{np.mean(recent_success):.2f}",
+            loss=f"{mean_loss:.4f}",
+            eval=f"{evals[-1]['success_rate']:.2f}" if evals else "-",
+        )
     bar.close()
     metrics_file.close()
 

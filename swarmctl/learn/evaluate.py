@@ -28,8 +28,16 @@ def _chunks(episodes: int, chunk: int):
         yield start, min(chunk, episodes - start)
 
 
-def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int, chunk: int = DEFAULT_CHUNK,
-               progress: bool = True, blocked: np.ndarray | None = None) -> dict:
+def run_policy(
+    cfg: WorldConfig,
+    spec: str,
+    episodes: int,
+    seed: int,
+    steps: int,
+    chunk: int = DEFAULT_CHUNK,
+    progress: bool = True,
+    blocked: np.ndarray | None = None,
+) -> dict:
     """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given); returns
     the per-policy result record."""
     policy = make_policy(spec)
@@ -80,8 +88,16 @@ def run_policy(cfg: WorldConfig, spec: str, episodes: int, seed: int, steps: int
     }
 
 
-def evaluate(cfg: WorldConfig, specs: list[str], episodes: int, seed: int, steps: int,
-             chunk: int = DEFAULT_CHUNK, progress: bool = True, blocked: np.ndarray | None = None) -> list[dict]:
+def evaluate(
+    cfg: WorldConfig,
+    specs: list[str],
+    episodes: int,
+    seed: int,
+    steps: int,
+    chunk: int = DEFAULT_CHUNK,
+    progress: bool = True,
+    blocked: np.ndarray | None = None,
+) -> list[dict]:
     """Evaluate every policy on the same episodes (on the fixed map `blocked` when given)."""
     for spec in specs:
         make_policy(spec)  # fail on a bad spec before any work

@@ -36,5 +36,9 @@ class ReplayMemory:
         """A uniform minibatch (obs, actions, rewards, next_obs) as float32 tensors on `device`."""
         idx = self.rng.integers(0, self.size, size=batch)
         as_t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
-        return (as_t(self.obs[idx].astype(np.float32)), as_t(self.actions[idx]), as_t(self.rewards[idx]),
-                as_t(self.next_obs[idx].astype(np.float32)))
+        return (
+            as_t(self.obs[idx].astype(np.float32)),
+            as_t(self.actions[idx]),
+            as_t(self.rewards[idx]),
+            as_t(self.next_obs[idx].astype(np.float32)),
+        )

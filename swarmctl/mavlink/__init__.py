@@ -10,11 +10,21 @@ import importlib
 from typing import Any
 
 _WHERE = {
-    "ArduPilotVehicle": "autopilots.ardupilot", "PX4Vehicle": "autopilots.px4",
-    "MavlinkLink": "network", "Vehicle": "vehicle", "Position": "vehicle", "Home": "vehicle",
-    "Target": "vehicle", "MavlinkError": "errors", "CommandRejected": "errors",
-    "CommandTimeout": "errors", "WaitTimeout": "errors", "load_signing_key": "codec",
-    "offset_m": "codec", "parse_connection": "codec", "MockAutopilot": "mock",
+    "ArduPilotVehicle": "autopilots.ardupilot",
+    "PX4Vehicle": "autopilots.px4",
+    "MavlinkLink": "network",
+    "Vehicle": "vehicle",
+    "Position": "vehicle",
+    "Home": "vehicle",
+    "Target": "vehicle",
+    "MavlinkError": "errors",
+    "CommandRejected": "errors",
+    "CommandTimeout": "errors",
+    "WaitTimeout": "errors",
+    "load_signing_key": "codec",
+    "offset_m": "codec",
+    "parse_connection": "codec",
+    "MockAutopilot": "mock",
 }
 __all__ = sorted(_WHERE)
 

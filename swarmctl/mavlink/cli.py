@@ -27,26 +27,58 @@ def parse_home(text: str) -> tuple[float, float, float]:
 
 @click.command("mock-vehicle")
 @click.option("--sysid", type=int, default=1, show_default=True, help="MAVLink system id (1..255).")
-@click.option("--connect", "connection", default="udpout:127.0.0.1:14550", show_default=True,
-              help="Where the controller is: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT.")
-@click.option("--home", default="-35.363262,149.165237,584", show_default=True,
-              help="Home LAT,LON,ALT (degrees, metres AMSL).")
-@click.option("--autopilot", type=click.Choice(["ardupilot", "px4"]), default="ardupilot",
-              show_default=True)
+@click.option(
+    "--connect",
+    "connection",
+    default="udpout:127.0.0.1:14550",
+    show_default=True,
+    help="Where the controller is: udpout:HOST:PORT, udpin:HOST:PORT, tcp:HOST:PORT.",
+)
+@click.option(
+    "--home", default="-35.363262,149.165237,584", show_default=True, help="Home LAT,LON,ALT (degrees, metres AMSL)."
+)
+@click.option("--autopilot", type=click.Choice(["ardupilot", "px4"]), default="ardupilot", show_default=True)
 @click.option("--speed", type=float, default=5.0, show_default=True, help="Horizontal speed, m/s.")
-@click.option("--speedup", type=float, default=1.0, show_default=True,
-              help="Simulated seconds per wall-clock second (physics only; link timing stays real).")
-@click.option("--signing-key", type=str, default=None,
-              help="File with a 32-byte MAVLink 2 signing key: sign everything, accept only signed.")
-@click.option("--ready-after", type=float, default=5.0, show_default=True,
-              help="Simulated seconds after boot before the pre-arm checks pass.")
-@click.option("--gcs-failsafe", type=float, default=5.0, show_default=True,
-              help="Seconds without a controller heartbeat before RTL (0 disables).")
-@click.option("--duration", type=float, default=0.0,
-              help="Stop after this many seconds (0: run until interrupted).")
-def mock_vehicle_command(sysid: int, connection: str, home: str, autopilot: str, speed: float,
-                         speedup: float, signing_key: str | None, ready_after: float,
-                         gcs_failsafe: float, duration: float) -> None:
+@click.option(
+    "--speedup",
+    type=float,
+    default=1.0,
+    show_default=True,
+    help="Simulated seconds per wall-clock second (physics only; link timing stays real).",
+)
+@click.option(
+    "--signing-key",
+    type=str,
+    default=None,
+    help="File with a 32-byte MAVLink 2 signing key: sign everything, accept only signed.",
+)
+@click.option(
+    "--ready-after",
+    type=float,
+    default=5.0,
+    show_default=True,
+    help="Simulated seconds after boot before the pre-arm checks pass.",
+)
+@click.option(
+    "--gcs-failsafe",
+    type=float,
+    default=5.0,
+    show_default=True,
+    help="Seconds without a controller heartbeat before RTL (0 disables).",
+)
+@click.option("--duration", type=float, default=0.0, help="Stop after this many seconds (0: run until interrupted).")
+def mock_vehicle_command(
+    sysid: int,
+    connection: str,
+    home: str,
+    autopilot: str,
+    speed: float,
+    speedup: float,
+    signing_key: str | None,
+    ready_after: float,
+    gcs_failsafe: float,
+    duration: float,
+) -> None:
     """Run a mock ArduCopter or PX4 vehicle that speaks MAVLink over a real socket."""
     from swarmctl.mavlink.mock import MockAutopilot
 
@@ -56,13 +88,22 @@ def mock_vehicle_command(sysid: int, connection: str, home: str, autopilot: str,
         raise InputError("--speed and --speedup must be positive numbers")
     parse_connection(connection, "--connect")
     key = load_signing_key(signing_key) if signing_key else None
-    mock = MockAutopilot(sysid, connection, home=parse_home(home), autopilot=autopilot, speed=speed,
-                         speedup=speedup, signing_key=key, ready_after=ready_after,
-                         gcs_failsafe_timeout=gcs_failsafe if gcs_failsafe > 0 else None)
+    mock = MockAutopilot(
+        sysid,
+        connection,
+        home=parse_home(home),
+        autopilot=autopilot,
+        speed=speed,
+        speedup=speedup,
+        signing_key=key,
+        ready_after=ready_after,
+        gcs_failsafe_timeout=gcs_failsafe if gcs_failsafe > 0 else None,
+    )
     mock.start()
     try:
-        click.echo(f"mock {autopilot} vehicle {sysid} on {connection}"
-                   f"{' (signing)' if key else ''}; Ctrl-C to stop", err=True)
+        click.echo(
+            f"mock {autopilot} vehicle {sysid} on {connection}{' (signing)' if key else ''}; Ctrl-C to stop", err=True
+        )
         end = time.monotonic() + duration if duration > 0 else math.inf
         while time.monotonic() < end:
             time.sleep(0.2)

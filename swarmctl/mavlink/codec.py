@@ -55,23 +55,55 @@ def distance_m(lat0: float, lon0: float, lat1: float, lon1: float) -> float:
 # --- ArduCopter flight modes (HEARTBEAT.custom_mode) ------------------------------------------------
 
 COPTER_MODES: dict[str, int] = {
-    "STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
-    "CIRCLE": 7, "LAND": 9, "DRIFT": 11, "SPORT": 13, "FLIP": 14, "AUTOTUNE": 15, "POSHOLD": 16,
-    "BRAKE": 17, "THROW": 18, "AVOID_ADSB": 19, "GUIDED_NOGPS": 20, "SMART_RTL": 21,
+    "STABILIZE": 0,
+    "ACRO": 1,
+    "ALT_HOLD": 2,
+    "AUTO": 3,
+    "GUIDED": 4,
+    "LOITER": 5,
+    "RTL": 6,
+    "CIRCLE": 7,
+    "LAND": 9,
+    "DRIFT": 11,
+    "SPORT": 13,
+    "FLIP": 14,
+    "AUTOTUNE": 15,
+    "POSHOLD": 16,
+    "BRAKE": 17,
+    "THROW": 18,
+    "AVOID_ADSB": 19,
+    "GUIDED_NOGPS": 20,
+    "SMART_RTL": 21,
 }
 COPTER_MODE_NAMES: dict[int, str] = {v: k for k, v in COPTER_MODES.items()}
 
 # --- PX4 custom mode: main mode in bits 16..23, sub mode in bits 24..31 ------------------------------
 
-PX4_MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOARD": 6,
-            "STABILIZED": 7, "RATTITUDE": 8}
-PX4_AUTO_SUB = {"READY": 1, "TAKEOFF": 2, "LOITER": 3, "MISSION": 4, "RTL": 5, "LAND": 6,
-                "RTGS": 7, "FOLLOW_TARGET": 8, "PRECLAND": 9}
+PX4_MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOARD": 6, "STABILIZED": 7, "RATTITUDE": 8}
+PX4_AUTO_SUB = {
+    "READY": 1,
+    "TAKEOFF": 2,
+    "LOITER": 3,
+    "MISSION": 4,
+    "RTL": 5,
+    "LAND": 6,
+    "RTGS": 7,
+    "FOLLOW_TARGET": 8,
+    "PRECLAND": 9,
+}
 # Names used across swarmctl for PX4 modes, with their (main, sub) pair.
 PX4_MODES: dict[str, tuple[int, int]] = {
-    "MANUAL": (1, 0), "ALTCTL": (2, 0), "POSCTL": (3, 0), "OFFBOARD": (6, 0), "STABILIZED": (7, 0),
+    "MANUAL": (1, 0),
+    "ALTCTL": (2, 0),
+    "POSCTL": (3, 0),
+    "OFFBOARD": (6, 0),
+    "STABILIZED": (7, 0),
     "ACRO": (5, 0),
-    "READY": (4, 1), "TAKEOFF": (4, 2), "HOLD": (4, 3), "MISSION": (4, 4), "RTL": (4, 5),
+    "READY": (4, 1),
+    "TAKEOFF": (4, 2),
+    "HOLD": (4, 3),
+    "MISSION": (4, 4),
+    "RTL": (4, 5),
     "LAND": (4, 6),
 }
 PX4_MODE_NAMES: dict[tuple[int, int], str] = {v: k for k, v in PX4_MODES.items()}
@@ -94,13 +126,22 @@ def px4_mode_name(custom_mode: int) -> str:
 
 # --- MAV_RESULT names ---------------------------------------------------------------------------------
 
-MAV_RESULT_NAMES = {0: "ACCEPTED", 1: "TEMPORARILY_REJECTED", 2: "DENIED", 3: "UNSUPPORTED",
-                    4: "FAILED", 5: "IN_PROGRESS", 6: "CANCELLED"}
+MAV_RESULT_NAMES = {
+    0: "ACCEPTED",
+    1: "TEMPORARILY_REJECTED",
+    2: "DENIED",
+    3: "UNSUPPORTED",
+    4: "FAILED",
+    5: "IN_PROGRESS",
+    6: "CANCELLED",
+}
 
 # --- connection strings -------------------------------------------------------------------------------
 
-CONNECTION_HELP = ("use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial device "
-                   "DEVICE:BAUD (e.g. udpin:0.0.0.0:14550, /dev/ttyUSB0:57600)")
+CONNECTION_HELP = (
+    "use udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT or a serial device "
+    "DEVICE:BAUD (e.g. udpin:0.0.0.0:14550, /dev/ttyUSB0:57600)"
+)
 
 
 @dataclass(frozen=True)
@@ -171,13 +212,17 @@ def load_signing_key(path: str | Path, field: str = "--signing-key") -> bytes:
     try:
         data = p.read_bytes()
     except OSError as exc:
-        raise InputError(f"{field} {str(p)!r}: cannot read the key file ({exc.strerror}); "
-                         "give a file with 32 raw bytes or 64 hex digits") from None
+        raise InputError(
+            f"{field} {str(p)!r}: cannot read the key file ({exc.strerror}); "
+            "give a file with 32 raw bytes or 64 hex digits"
+        ) from None
     if len(data) == 32:
         return data
     text = data.decode("ascii", errors="replace").strip()
     if re.fullmatch(r"[0-9A-Fa-f]{64}", text):
         return bytes.fromhex(text)
-    raise InputError(f"{field} {str(p)!r}: a signing key is 32 raw bytes or 64 hex digits, "
-                     f"this file has {len(data)} bytes; create one with "
-                     "`head -c 32 /dev/urandom > KEYFILE`")
+    raise InputError(
+        f"{field} {str(p)!r}: a signing key is 32 raw bytes or 64 hex digits, "
+        f"this file has {len(data)} bytes; create one with "
+        "`head -c 32 /dev/urandom > KEYFILE`"
+    )

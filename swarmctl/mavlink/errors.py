@@ -21,8 +21,7 @@ class CommandTimeout(MavlinkError):
 
     def __init__(self, command: str, vehicle: str, attempts: int, timeout: float):
         self.command, self.vehicle, self.attempts = command, vehicle, attempts
-        detail = (f"after {attempts} attempts ({timeout:g} s each)" if attempts
-                  else "(MAVSDK's own retries timed out)")
+        detail = f"after {attempts} attempts ({timeout:g} s each)" if attempts else "(MAVSDK's own retries timed out)"
         super().__init__(f"{vehicle}: no answer to {command} {detail}")
 
 

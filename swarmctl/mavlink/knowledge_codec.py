@@ -104,8 +104,11 @@ class BitmapChunk(Report):
         self.bits = np.asarray(self.bits, dtype=bool).reshape(-1)
 
     def __eq__(self, other: object) -> bool:
-        return (self._same_report(other) and (self.index, self.count, self.target) == (other.index, other.count, other.target)
-                and np.array_equal(self.bits, other.bits))
+        return (
+            self._same_report(other)
+            and (self.index, self.count, self.target) == (other.index, other.count, other.target)
+            and np.array_equal(self.bits, other.bits)
+        )
 
 
 Message = Delta | BitmapChunk | Detection
@@ -133,13 +136,14 @@ class KnowledgeCodec:
     `parse_datagram(bytes)`. Rejections are counted in `self.rejected`, accepted messages in
     `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
 
-    def __init__(self, mission_id: int, width: int, height: int, system_id: int = 1,
-                 component_id: int = COMPONENT_ID):
+    def __init__(self, mission_id: int, width: int, height: int, system_id: int = 1, component_id: int = COMPONENT_ID):
         if not 0 <= mission_id <= 0xFFFF:
             raise ValueError(f"mission id {mission_id} must fit in 16 bits (0..65535)")
         if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE and width * height <= MAX_CELLS):
-            raise ValueError(f"grid {width} x {height} is too large for the knowledge codec: "
-                             f"sides <= {MAX_SIDE} and at most {MAX_CELLS} cells")
+            raise ValueError(
+                f"grid {width} x {height} is too large for the knowledge codec: "
+                f"sides <= {MAX_SIDE} and at most {MAX_CELLS} cells"
+            )
         self.mission_id, self.width, self.height = int(mission_id), int(width), int(height)
         self.chunks = digest_chunk_count(self.width, self.height)
         self.max_delta_chunks = min(MAX_CHUNKS, -(-self.width * self.height // MAX_DELTA_CELLS))
@@ -153,8 +157,17 @@ class KnowledgeCodec:
         self.last_repair = False  # the repair flag of the last accepted payload
 
     # ----- encoding ---------------------------------------------------------------------------------
-    def _header(self, sender: int, step: int, chunk: int, chunks: int, cell, on_target: bool, repair: bool,
-                cell_list: bool = False) -> bytes:
+    def _header(
+        self,
+        sender: int,
+        step: int,
+        chunk: int,
+        chunks: int,
+        cell,
+        on_target: bool,
+        repair: bool,
+        cell_list: bool = False,
+    ) -> bytes:
         if not 0 <= sender <= MAX_VEHICLE_ID:
             raise ValueError(f"vehicle id {sender} must be 0..{MAX_VEHICLE_ID}")
         if not 0 <= step <= 0xFFFFFFFF:
@@ -162,10 +175,13 @@ class KnowledgeCodec:
         x, y = (NO_CELL, NO_CELL) if cell is None else cell
         if cell is not None and not (0 <= x < self.width and 0 <= y < self.height):
             raise ValueError(f"position {cell} is outside the {self.width} x {self.height} grid")
-        flags = (FLAG_ON_TARGET if on_target else 0) | (FLAG_REPAIR if repair else 0) | (FLAG_CELL_LIST if cell_list else 0)
+        flags = (
+            (FLAG_ON_TARGET if on_target else 0) | (FLAG_REPAIR if repair else 0) | (FLAG_CELL_LIST if cell_list else 0)
+        )
         seq, self._seq = self._seq, (self._seq + 1) & 0xFFFF
-        return HEADER.pack(FORMAT_VERSION, self.mission_id, sender, step, self.width, self.height, seq,
-                           chunk, chunks, x, y, flags)
+        return HEADER.pack(
+            FORMAT_VERSION, self.mission_id, sender, step, self.width, self.height, seq, chunk, chunks, x, y, flags
+        )
 
     def encode(self, message: Message, repair: bool = False) -> list[tuple[int, bytes]]:
         """Payloads (payload_type, bytes <= 128) for one message; deltas and detections are chunked."""
@@ -179,7 +195,9 @@ class KnowledgeCodec:
 
     def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes]]:
         cells = delta.cells
-        if cells.size and ((cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()):
+        if cells.size and (
+            (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
+        ):
             raise ValueError(f"delta cells outside the {self.width} x {self.height} grid")
         if np.unique(cells[:, 0] * self.height + cells[:, 1]).size != len(cells):
             raise ValueError("a delta lists each cell once")
@@ -203,41 +221,66 @@ class KnowledgeCodec:
         if (t < 0).any() or (t[:, 0] >= self.width).any() or (t[:, 1] >= self.height).any():
             raise ValueError(f"detection cells outside the {self.width} x {self.height} grid")
         pieces = [t[i : i + MAX_DETECTIONS] for i in range(0, len(t), MAX_DETECTIONS)]
-        return [(PT_DETECTION, self._header(det.sender, det.step, i, len(pieces), det.cell, det.on_target, False)
-                 + bytes([len(p)]) + p.astype(np.uint8).tobytes()) for i, p in enumerate(pieces)]
+        return [
+            (
+                PT_DETECTION,
+                self._header(det.sender, det.step, i, len(pieces), det.cell, det.on_target, False)
+                + bytes([len(p)])
+                + p.astype(np.uint8).tobytes(),
+            )
+            for i, p in enumerate(pieces)
+        ]
 
     def _encode_bitmap(self, chunk: BitmapChunk) -> tuple[int, bytes]:
         expected = min(CELLS_PER_CHUNK, self.width * self.height - chunk.index * CELLS_PER_CHUNK)
         if chunk.count != self.chunks or not 0 <= chunk.index < chunk.count or chunk.bits.size != expected:
-            raise ValueError(f"bitmap chunk {chunk.index}/{chunk.count} of {chunk.bits.size} bits does not fit "
-                             f"a {self.width} x {self.height} grid ({self.chunks} chunks)")
+            raise ValueError(
+                f"bitmap chunk {chunk.index}/{chunk.count} of {chunk.bits.size} bits does not fit "
+                f"a {self.width} x {self.height} grid ({self.chunks} chunks)"
+            )
         bits = np.packbits(chunk.bits, bitorder="little").tobytes()
         offsets = np.flatnonzero(chunk.bits)
         cell_list = 1 + 2 * offsets.size < len(bits)
         if cell_list:
             bits = bytes([offsets.size]) + offsets.astype("<u2").tobytes()
-        head = self._header(chunk.sender, chunk.step, chunk.index, chunk.count, chunk.cell, chunk.on_target, False,
-                            cell_list)
+        head = self._header(
+            chunk.sender, chunk.step, chunk.index, chunk.count, chunk.cell, chunk.on_target, False, cell_list
+        )
         if chunk.target is None:
             return PT_DIGEST, head + bits
         return PT_REQUEST, head + bytes([chunk.target]) + bits
 
-    def digest(self, sender: int, step: int, cell, on_target: bool, explored: np.ndarray,
-               target: int | None = None, only_nonempty: bool = False) -> list[BitmapChunk]:
+    def digest(
+        self,
+        sender: int,
+        step: int,
+        cell,
+        on_target: bool,
+        explored: np.ndarray,
+        target: int | None = None,
+        only_nonempty: bool = False,
+    ) -> list[BitmapChunk]:
         """The chunks of an explored-cell bitmap: a digest, or a request to `target`."""
-        return [BitmapChunk(sender, step, cell, on_target, i, self.chunks, bits, target)
-                for i, bits in enumerate(bitmap_chunks(explored)) if not only_nonempty or bits.any()]
+        return [
+            BitmapChunk(sender, step, cell, on_target, i, self.chunks, bits, target)
+            for i, bits in enumerate(bitmap_chunks(explored))
+            if not only_nonempty or bits.any()
+        ]
 
     # ----- decoding ---------------------------------------------------------------------------------
     def _reject(self, reason: str, detail: str = "") -> None:
         if reason not in self.rejected:
-            log.warning("knowledge: rejected a TUNNEL payload (%s)%s; further ones are only counted",
-                        reason, f": {detail}" if detail else "")
+            log.warning(
+                "knowledge: rejected a TUNNEL payload (%s)%s; further ones are only counted",
+                reason,
+                f": {detail}" if detail else "",
+            )
         self.rejected[reason] += 1
         return None
 
-    def decode(self, payload_type: int, payload: bytes | bytearray | list[int], payload_length: int | None = None
-               ) -> Message | None:
+    def decode(
+        self, payload_type: int, payload: bytes | bytearray | list[int], payload_length: int | None = None
+    ) -> Message | None:
         """One TUNNEL payload to a message, or None (counted in `rejected`). Never raises on bad bytes.
 
         `payload_length` is TUNNEL.payload_length; None means len(payload)."""
@@ -262,7 +305,8 @@ class KnowledgeCodec:
         if (w, h) != (self.width, self.height):
             return self._reject("grid", f"{w} x {h}")
         if flags & ~(FLAG_ON_TARGET | FLAG_REPAIR | FLAG_CELL_LIST) or (
-                flags & FLAG_CELL_LIST and payload_type not in (PT_DIGEST, PT_REQUEST)):
+            flags & FLAG_CELL_LIST and payload_type not in (PT_DIGEST, PT_REQUEST)
+        ):
             return self._reject("flags", hex(flags))
         if (x, y) == (NO_CELL, NO_CELL):
             cell = None
@@ -279,8 +323,9 @@ class KnowledgeCodec:
         elif payload_type == PT_DETECTION:
             msg = self._decode_detection(body, sender, step, cell, on_target)
         else:
-            msg = self._decode_bitmap(payload_type, body, sender, step, cell, on_target, chunk, chunks,
-                                      bool(flags & FLAG_CELL_LIST))
+            msg = self._decode_bitmap(
+                payload_type, body, sender, step, cell, on_target, chunk, chunks, bool(flags & FLAG_CELL_LIST)
+            )
         if msg is not None:
             self.accepted[KIND_NAMES[payload_type]] += 1
             self.last_repair = bool(flags & FLAG_REPAIR)
@@ -306,8 +351,9 @@ class KnowledgeCodec:
             return self._reject("cell", "detection outside the grid")
         return Detection(sender, step, cell, on_target, t)
 
-    def _decode_bitmap(self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks, cell_list: bool
-                       ) -> BitmapChunk | None:
+    def _decode_bitmap(
+        self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks, cell_list: bool
+    ) -> BitmapChunk | None:
         if chunks != self.chunks:
             return self._reject("chunks", f"{chunks} bitmap chunks, the grid needs {self.chunks}")
         target = None

@@ -12,10 +12,11 @@ Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge
 - a vehicle that receives a digest showing cells it lacks sends a REQUEST (bitmap of the missing
   cells; at most one per digest chunk per `digest_every` steps) to the digest's sender, which
   answers with repair DELTAs of those cells (anything it knows, its own or received), broadcast so
-  every vehicle missing them benefits; with `push` (default) a
-  vehicle that receives a digest lacking cells it already knew before the digest's step also sends
-  them at once (only the `push_fanout` vehicles following the digest's sender in id order do) (cells learnt this step may still be in flight, so they are not pushed), which
-  shortens convergence under loss (docs/knowledge.md). Steps are the swarm's common mission step.
+  every vehicle missing them benefits; with `push` (default) a vehicle that receives a digest
+  lacking cells it already knew before the digest's step also sends them at once (only the
+  `push_fanout` vehicles following the digest's sender in id order do; cells learnt this step may
+  still be in flight, so they are not pushed), which shortens convergence under loss
+  (docs/knowledge.md). Steps are the swarm's common mission step.
 Every message carries the sender's position; positions merge newest-step-wins.
 
 Concurrency: none of its own. The owner calls `poll` (from its loop, or when `fileno()` is readable,
@@ -46,9 +47,19 @@ RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 class KnowledgeExchange:
     """Knowledge + a UDP socket on `host` that sends to `peer` (a radio or a MAVLink router)."""
 
-    def __init__(self, knowledge: Knowledge, mission_id: int, peer: Address, *, system_id: int | None = None,
-                 digest_every: int = 5, push: bool = True, push_fanout: int = 2, host: str = "127.0.0.1",
-                 port: int = 0):
+    def __init__(
+        self,
+        knowledge: Knowledge,
+        mission_id: int,
+        peer: Address,
+        *,
+        system_id: int | None = None,
+        digest_every: int = 5,
+        push: bool = True,
+        push_fanout: int = 2,
+        host: str = "127.0.0.1",
+        port: int = 0,
+    ):
         self.knowledge = knowledge
         self.vehicle_id = knowledge.vehicle_id
         self.peer = peer
@@ -68,8 +79,10 @@ class KnowledgeExchange:
             self.sock.setblocking(False)
         except OSError as exc:
             self.sock.close()
-            raise InputError(f"knowledge link: cannot open UDP {host}:{port} ({exc.strerror}); "
-                             "check the address and that the port is free") from None
+            raise InputError(
+                f"knowledge link: cannot open UDP {host}:{port} ({exc.strerror}); "
+                "check the address and that the port is free"
+            ) from None
         self.address: Address = self.sock.getsockname()
 
     # ----- life cycle -------------------------------------------------------------------------------
@@ -92,15 +105,22 @@ class KnowledgeExchange:
                 self.sock.sendto(frame, self.peer)
             except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
                 if not self.stats["send_errors"]:
-                    log.warning("knowledge: cannot send to %s (%s); further failures are only counted",
-                                self.peer, exc)
+                    log.warning("knowledge: cannot send to %s (%s); further failures are only counted", self.peer, exc)
                 self.stats["send_errors"] += 1
                 continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
 
-    def step(self, step: int, cell: tuple[int, int], on_target: bool = False, cells=None, phi=None,
-             obstacle=None, targets=None) -> None:
+    def step(
+        self,
+        step: int,
+        cell: tuple[int, int],
+        on_target: bool = False,
+        cells=None,
+        phi=None,
+        obstacle=None,
+        targets=None,
+    ) -> None:
         """One decision step: record the own position, sense `cells` (with their phi and obstacle
         flags), note target cells found, and publish."""
         self.knowledge.set_position(step, cell, on_target)
@@ -185,8 +205,9 @@ class KnowledgeExchange:
                 self._request(message.sender, missing, message.index)
             if self.push and self._pushes_to(message.sender):  # ... and offer what they lack and we knew
                 self._note_learned(self._now)
-                region = chunk_mask(BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)),
-                                    kn.width, kn.height)
+                region = chunk_mask(
+                    BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)), kn.width, kn.height
+                )
                 answer = kn.cells_delta(region & ~theirs & (self._learned_at < message.step))
                 if len(answer):
                     self._send(answer, repair=True)

@@ -18,8 +18,9 @@ import logging
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -81,17 +82,24 @@ class MavlinkLink:
     Use it as ``async with MavlinkLink("udpin:0.0.0.0:14550") as link: ...``.
     """
 
-    def __init__(self, connection: str | Endpoint, *, system_id: int = 255, component_id: int = 190,
-                 signing_key: bytes | None = None, accept_unsigned: bool = False,
-                 heartbeat_type: int = MAV.MAV_TYPE_GCS, heartbeat_period: float = 1.0,
-                 lost_after: float = 3.0):
+    def __init__(
+        self,
+        connection: str | Endpoint,
+        *,
+        system_id: int = 255,
+        component_id: int = 190,
+        signing_key: bytes | None = None,
+        accept_unsigned: bool = False,
+        heartbeat_type: int = MAV.MAV_TYPE_GCS,
+        heartbeat_period: float = 1.0,
+        lost_after: float = 3.0,
+    ):
         self.endpoint = connection if isinstance(connection, Endpoint) else parse_connection(connection)
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError("a MAVLink signing key is 32 bytes")
         self.system_id, self.component_id = system_id, component_id
         self.signing_key, self.accept_unsigned = signing_key, accept_unsigned
-        self.heartbeat_type, self.heartbeat_period, self.lost_after = (
-            heartbeat_type, heartbeat_period, lost_after)
+        self.heartbeat_type, self.heartbeat_period, self.lost_after = (heartbeat_type, heartbeat_period, lost_after)
         self.peers: dict[int, Peer] = {}
         self.stats = LinkStats()
         self.events: list[tuple[float, int, str]] = []  # (monotonic time, sysid, "seen"|"lost"|"back")
@@ -109,24 +117,21 @@ class MavlinkLink:
 
     # --- life cycle ---------------------------------------------------------------------------------
 
-    async def open(self) -> "MavlinkLink":
+    async def open(self) -> MavlinkLink:
         self._loop = asyncio.get_running_loop()
         self._transport = open_transport(self.endpoint)
-        self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id,
-                               srcComponent=self.component_id)
+        self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id, srcComponent=self.component_id)
         self.mav.robust_parsing = True
         if self.signing_key is not None:
             s = self.mav.signing
             s.secret_key, s.sign_outgoing, s.link_id = self.signing_key, True, 0
             s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
             s.allow_unsigned_callback = (
-                (lambda _mav, _mid: True) if self.accept_unsigned
-                else (lambda _mav, msg_id: msg_id in _UNSIGNED_OK))
-        self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}",
-                                        daemon=True)
+                (lambda _mav, _mid: True) if self.accept_unsigned else (lambda _mav, msg_id: msg_id in _UNSIGNED_OK)
+            )
+        self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
         self._thread.start()
-        self._tasks = [asyncio.create_task(self._heartbeat_loop()),
-                       asyncio.create_task(self._watchdog_loop())]
+        self._tasks = [asyncio.create_task(self._heartbeat_loop()), asyncio.create_task(self._watchdog_loop())]
         return self
 
     async def close(self) -> None:
@@ -144,7 +149,7 @@ class MavlinkLink:
                 fut.cancel()
         self._waiters.clear()
 
-    async def __aenter__(self) -> "MavlinkLink":
+    async def __aenter__(self) -> MavlinkLink:
         return await self.open()
 
     async def __aexit__(self, *exc: object) -> None:
@@ -184,8 +189,12 @@ class MavlinkLink:
                 self.stats.bad_data += 1
                 if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
                     self._bad_logged = now
-                    log.warning("rejected bad MAVLink data on %s (%d so far): %s", self.endpoint,
-                                self.stats.bad_data, getattr(msg, "reason", ""))
+                    log.warning(
+                        "rejected bad MAVLink data on %s (%d so far): %s",
+                        self.endpoint,
+                        self.stats.bad_data,
+                        getattr(msg, "reason", ""),
+                    )
                 continue
             self.stats.received += 1
             src = msg.get_srcSystem()
@@ -253,8 +262,7 @@ class MavlinkLink:
             if entry in self._waiters:
                 self._waiters.remove(entry)
 
-    async def wait_until(self, condition: Callable[[], bool], timeout: float, what: str,
-                         vehicle: str) -> None:
+    async def wait_until(self, condition: Callable[[], bool], timeout: float, what: str, vehicle: str) -> None:
         """Wait until condition() holds (re-checked on every message and every 0.2 s)."""
         deadline = time.monotonic() + timeout
         while not condition():
@@ -263,7 +271,7 @@ class MavlinkLink:
                 raise WaitTimeout(what, vehicle, timeout)
             try:
                 await self.wait_message(lambda _m: condition(), min(left, 0.2))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
 
     # --- link state ---------------------------------------------------------------------------------
@@ -280,14 +288,14 @@ class MavlinkLink:
     async def wait_heartbeat(self, sysid: int, timeout: float = 10.0) -> Peer:
         p = self.peers.get(sysid)
         if p is None or p.heartbeat is None or p.lost:
-            await self.wait_until(lambda: not self.is_lost(sysid), timeout,
-                                  "a HEARTBEAT", f"vehicle {sysid}")
+            await self.wait_until(lambda: not self.is_lost(sysid), timeout, "a HEARTBEAT", f"vehicle {sysid}")
         return self.peers[sysid]
 
     async def _heartbeat_loop(self) -> None:
         while True:
-            self.send(self.mav.heartbeat_encode(self.heartbeat_type, MAV.MAV_AUTOPILOT_INVALID,
-                                                0, 0, MAV.MAV_STATE_ACTIVE))
+            self.send(
+                self.mav.heartbeat_encode(self.heartbeat_type, MAV.MAV_AUTOPILOT_INVALID, 0, 0, MAV.MAV_STATE_ACTIVE)
+            )
             await asyncio.sleep(self.heartbeat_period)
 
     async def _watchdog_loop(self) -> None:
@@ -309,9 +317,19 @@ class MavlinkLink:
             self.mav.send(msg)
         self.stats.sent += 1
 
-    async def command(self, sysid: int, command: int, params: tuple[float, ...] = (), *,
-                      compid: int | None = None, timeout: float = 1.0, retries: int = 3,
-                      vehicle: str | None = None, use_int: bool = False, frame: int = 0) -> Any:
+    async def command(
+        self,
+        sysid: int,
+        command: int,
+        params: tuple[float, ...] = (),
+        *,
+        compid: int | None = None,
+        timeout: float = 1.0,
+        retries: int = 3,
+        vehicle: str | None = None,
+        use_int: bool = False,
+        frame: int = 0,
+    ) -> Any:
         """Send COMMAND_LONG (or COMMAND_INT) and wait for its COMMAND_ACK, resending on timeout.
 
         Returns the ACCEPTED ack. Raises CommandRejected on DENIED/FAILED/UNSUPPORTED/
@@ -328,12 +346,11 @@ class MavlinkLink:
             attempts = 1 + max(0, retries)
             for attempt in range(attempts):
                 if use_int:
-                    msg = self.mav.command_int_encode(sysid, target_comp, frame, command, 0, 0,
-                                                      p[0], p[1], p[2], p[3], int(p[4]), int(p[5]),
-                                                      p[6])
+                    msg = self.mav.command_int_encode(
+                        sysid, target_comp, frame, command, 0, 0, p[0], p[1], p[2], p[3], int(p[4]), int(p[5]), p[6]
+                    )
                 else:
-                    msg = self.mav.command_long_encode(sysid, target_comp, command, min(attempt, 255),
-                                                       *p)
+                    msg = self.mav.command_long_encode(sysid, target_comp, command, min(attempt, 255), *p)
                 self.send(msg)
                 deadline = time.monotonic() + timeout
                 while True:
@@ -342,9 +359,12 @@ class MavlinkLink:
                         break
                     try:
                         ack = await self.wait_message(
-                            lambda m: (m.get_type() == "COMMAND_ACK" and m.get_srcSystem() == sysid
-                                       and m.command == command), left)
-                    except asyncio.TimeoutError:
+                            lambda m: (
+                                m.get_type() == "COMMAND_ACK" and m.get_srcSystem() == sysid and m.command == command
+                            ),
+                            left,
+                        )
+                    except TimeoutError:
                         break
                     if ack.result == MAV.MAV_RESULT_IN_PROGRESS:
                         deadline = time.monotonic() + timeout
@@ -352,13 +372,15 @@ class MavlinkLink:
                     if ack.result == MAV.MAV_RESULT_ACCEPTED:
                         return ack
                     await asyncio.sleep(0.02)  # a STATUSTEXT saying why may trail the ack
-                    raise CommandRejected(name, who, MAV_RESULT_NAMES.get(ack.result, str(ack.result)),
-                                          peer.texts_since(started - 0.05))
+                    raise CommandRejected(
+                        name, who, MAV_RESULT_NAMES.get(ack.result, str(ack.result)), peer.texts_since(started - 0.05)
+                    )
                 log.info("%s: no ack to %s (attempt %d of %d)", who, name, attempt + 1, attempts)
             raise CommandTimeout(name, who, attempts, timeout)
 
-    async def read_param(self, sysid: int, name: str, *, timeout: float = 1.0, retries: int = 3,
-                         vehicle: str | None = None) -> float:
+    async def read_param(
+        self, sysid: int, name: str, *, timeout: float = 1.0, retries: int = 3, vehicle: str | None = None
+    ) -> float:
         """A parameter's value: PARAM_REQUEST_READ by name, answered by PARAM_VALUE, resent on timeout.
         CommandTimeout when no answer came after 1 + retries attempts."""
         who = vehicle or f"vehicle {sysid}"
@@ -375,14 +397,13 @@ class MavlinkLink:
             self.send(self.mav.param_request_read_encode(sysid, peer.compid, name.encode(), -1))
             try:
                 return float((await self.wait_message(answer, timeout)).param_value)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 log.info("%s: no answer to reading %s (attempt %d of %d)", who, name, attempt + 1, attempts)
         raise CommandTimeout(f"reading parameter {name}", who, attempts, timeout)
 
     async def set_message_interval(self, sysid: int, message_id: int, rate_hz: float, **kw: Any) -> Any:
         interval_us = -1.0 if rate_hz <= 0 else 1e6 / rate_hz
-        return await self.command(sysid, MAV.MAV_CMD_SET_MESSAGE_INTERVAL,
-                                  (float(message_id), interval_us), **kw)
+        return await self.command(sysid, MAV.MAV_CMD_SET_MESSAGE_INTERVAL, (float(message_id), interval_us), **kw)
 
 
 async def cancel_tasks(tasks: list[asyncio.Task]) -> None:

@@ -47,8 +47,14 @@ Address = tuple[str, int]
 class Radio:
     """Loopback broadcast medium with the simulator's packet-loss model (see the module docstring)."""
 
-    def __init__(self, channel: Channel | None = None, seed: int = 0, host: str = "127.0.0.1",
-                 lossy_other: bool = False, poll_interval: float = 0.05):
+    def __init__(
+        self,
+        channel: Channel | None = None,
+        seed: int = 0,
+        host: str = "127.0.0.1",
+        lossy_other: bool = False,
+        poll_interval: float = 0.05,
+    ):
         self.channel = channel or Channel("ideal")
         self.seed = int(seed)
         self.lossy_other = lossy_other
@@ -214,7 +220,9 @@ def wait_quiet(radio: Radio, agents: list, timeout: float = 10.0) -> None:
             if sum(a.poll(0.0) for a in agents) == 0 and sum(a.stats["sent_packets"] for a in agents) == sent:
                 return
         if time.monotonic() > deadline:
-            raise TimeoutError(f"swarm not quiet after {timeout} s: radio got {received}/{sent} datagrams, "
-                               f"agents read {[a.stats['received_packets'] for a in agents]} of {delivered}")
+            raise TimeoutError(
+                f"swarm not quiet after {timeout} s: radio got {received}/{sent} datagrams, "
+                f"agents read {[a.stats['received_packets'] for a in agents]} of {delivered}"
+            )
         if agents:
             agents[0].poll(0.002)

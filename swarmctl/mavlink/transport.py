@@ -49,8 +49,10 @@ class UdpTransport(Transport):
                 self.sock.bind(("0.0.0.0", 0))
         except OSError as exc:
             self.sock.close()
-            raise InputError(f"connection {str(ep)!r}: cannot open the UDP socket ({exc.strerror}); "
-                             "check the host and that the port is free") from None
+            raise InputError(
+                f"connection {str(ep)!r}: cannot open the UDP socket ({exc.strerror}); "
+                "check the host and that the port is free"
+            ) from None
         self.local_port = self.sock.getsockname()[1]
 
     def read(self, timeout: float) -> bytes:
@@ -84,8 +86,10 @@ class TcpTransport(Transport):
         try:
             self.sock = socket.create_connection((ep.host, ep.port), timeout=5.0)
         except OSError as exc:
-            raise InputError(f"connection {str(ep)!r}: cannot connect ({exc.strerror or exc}); "
-                             "check that the vehicle or simulator listens on that TCP port") from None
+            raise InputError(
+                f"connection {str(ep)!r}: cannot connect ({exc.strerror or exc}); "
+                "check that the vehicle or simulator listens on that TCP port"
+            ) from None
         self.sock.setblocking(True)
 
     def read(self, timeout: float) -> bytes:
@@ -112,13 +116,16 @@ class SerialTransport(Transport):
         try:
             import serial  # pyserial, pulled in by pymavlink for serial links
         except ImportError:
-            raise InputError(f"connection {str(ep)!r}: serial links need pyserial; "
-                             "install it with `pip install pyserial`") from None
+            raise InputError(
+                f"connection {str(ep)!r}: serial links need pyserial; install it with `pip install pyserial`"
+            ) from None
         try:
             self.port = serial.Serial(ep.device, ep.baud, timeout=0)
         except (OSError, serial.SerialException) as exc:
-            raise InputError(f"connection {str(ep)!r}: cannot open the serial device ({exc}); "
-                             "check the device path, the baud rate and permissions") from None
+            raise InputError(
+                f"connection {str(ep)!r}: cannot open the serial device ({exc}); "
+                "check the device path, the baud rate and permissions"
+            ) from None
 
     def read(self, timeout: float) -> bytes:
         r, _, _ = select.select([self.port.fileno()], [], [], timeout)
@@ -146,7 +153,7 @@ def parse_bytes(mav: Any, data: bytes, datagram: bool) -> list:
         msgs = [_bad_data(mav, bytearray(data), str(exc))]
         _reset_parser(mav)
     if datagram and mav.buf_len() > 0:
-        leftover = mav.buf[mav.buf_index:]
+        leftover = mav.buf[mav.buf_index :]
         _reset_parser(mav)
         msgs.append(_bad_data(mav, bytearray(leftover), "truncated packet at the end of a datagram"))
     return msgs

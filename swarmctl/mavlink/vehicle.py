@@ -50,8 +50,9 @@ def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, floa
         if not (math.isfinite(lat) and math.isfinite(lon) and abs(lat) <= 90.0 and abs(lon) <= 180.0):
             raise ValueError(f"fence vertex ({lat!r}, {lon!r}) is not a latitude, longitude in degrees")
     if len(set(vertices)) < 3 or len(set(vertices)) != len(vertices):
-        raise ValueError(f"a fence polygon needs at least 3 distinct vertices, not {len(vertices)} "
-                         f"({len(set(vertices))} distinct)")
+        raise ValueError(
+            f"a fence polygon needs at least 3 distinct vertices, not {len(vertices)} ({len(set(vertices))} distinct)"
+        )
     return vertices
 
 
@@ -165,7 +166,7 @@ class Vehicle(abc.ABC):
             await self._on_wait()
             await asyncio.sleep(period)
 
-    async def _on_wait(self) -> None:
+    async def _on_wait(self) -> None:  # noqa: B027 - an optional hook, empty by default
         """Hook run while waiting (ArduPilot resends its position target here)."""
 
     def _state_text(self) -> str:
@@ -173,7 +174,7 @@ class Vehicle(abc.ABC):
         where = "no position" if pos is None else f"at {pos.lat:.7f},{pos.lon:.7f} {pos.rel_alt:.1f} m"
         return f"mode {self.mode}, {'armed' if self.armed else 'disarmed'}, {where}"
 
-    async def __aenter__(self) -> "Vehicle":
+    async def __aenter__(self) -> Vehicle:
         return self
 
     async def __aexit__(self, *exc: object) -> None:

@@ -56,8 +56,10 @@ def _out_folder(out: Path | None, name: str) -> Path:
 def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
     if not quiet:
         found = len(summary["targets_found"])
-        click.echo(f"{summary['outcome']}: {found} target{'s' if found != 1 else ''} found, "
-                   f"{summary['steps']} steps in {summary['search_time_s']:.1f} s; recording in {folder}")
+        click.echo(
+            f"{summary['outcome']}: {found} target{'s' if found != 1 else ''} found, "
+            f"{summary['steps']} steps in {summary['search_time_s']:.1f} s; recording in {folder}"
+        )
     if code:
         raise click.exceptions.Exit(code)
 
@@ -70,30 +72,63 @@ def view_options(func):
 @click.command("demo")
 @click.option("--uavs", "--vehicles", "uavs", type=int, default=3, show_default=True, help="Mock vehicles.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Where the targets hide, and the policy's draws.")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Recording folder (default runs/demo-YYYYmmdd-HHMMSS).")
-@click.option("--policy", default=None,
-              help=f"ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier or random. Default: "
-                   f"ddql:{DEMO_MODEL}:straggler=frontier if that file exists and takes 20 x 20 observations, "
-                   "else frontier.")
-@click.option("--mission", "mission_file", type=click.Path(path_type=Path), default=None,
-              help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].")
-@click.option("--speedup", type=float, default=10.0, show_default=True,
-              help="Mock physics runs this many times faster than the wall clock. The controller's own time per "
-                   "round is multiplied too, in mock time: higher values cost the mock batteries more per step.")
+@click.option(
+    "--out", type=click.Path(path_type=Path), default=None, help="Recording folder (default runs/demo-YYYYmmdd-HHMMSS)."
+)
+@click.option(
+    "--policy",
+    default=None,
+    help=f"ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier or random. Default: "
+    f"ddql:{DEMO_MODEL}:straggler=frontier if that file exists and takes 20 x 20 observations, "
+    "else frontier.",
+)
+@click.option(
+    "--mission",
+    "mission_file",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].",
+)
+@click.option(
+    "--speedup",
+    type=float,
+    default=10.0,
+    show_default=True,
+    help="Mock physics runs this many times faster than the wall clock. The controller's own time per "
+    "round is multiplied too, in mock time: higher values cost the mock batteries more per step.",
+)
 @click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
 @click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
 @click.option("--time-limit", type=float, default=300.0, show_default=True, help="Search time limit, seconds.")
-@click.option("--gcs", default=None, metavar="udpout:HOST:PORT",
-              help="Forward the mock vehicles' MAVLink to a ground station (QGroundControl: udpout:127.0.0.1:14550). "
-                   "Default: the mission file's gcs, else none.")
-@click.option("--fence", is_flag=True,
-              help="Upload the area's boundary to every mock vehicle as its geofence before take-off "
-                   "(also on when the --mission file says fence = true).")
+@click.option(
+    "--gcs",
+    default=None,
+    metavar="udpout:HOST:PORT",
+    help="Forward the mock vehicles' MAVLink to a ground station (QGroundControl: udpout:127.0.0.1:14550). "
+    "Default: the mission file's gcs, else none.",
+)
+@click.option(
+    "--fence",
+    is_flag=True,
+    help="Upload the area's boundary to every mock vehicle as its geofence before take-off "
+    "(also on when the --mission file says fence = true).",
+)
 @view_options
-def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mission_file: Path | None,
-                 speedup: float, targets: int | None, end_action: str, time_limit: float, gcs: str | None,
-                 fence: bool, quiet: bool, no_live: bool) -> None:
+def demo_command(
+    uavs: int,
+    seed: int,
+    out: Path | None,
+    policy: str | None,
+    mission_file: Path | None,
+    speedup: float,
+    targets: int | None,
+    end_action: str,
+    time_limit: float,
+    gcs: str | None,
+    fence: bool,
+    quiet: bool,
+    no_live: bool,
+) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
@@ -145,19 +180,29 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
     except ValueError as exc:
         raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
     with swarm:
-        plan = swarm.plan(policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to,
-                          fence=fence)
+        plan = swarm.plan(
+            policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to, fence=fence
+        )
         if mission_file is not None:
             plan.name, plan.mission_file = cfg.name, cfg.path
         if not quiet:
-            click.echo(f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
-                       f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x"
-                       f"{', geofence on' if fence else ''} -> {folder}", err=True)
+            click.echo(
+                f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
+                f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x"
+                f"{', geofence on' if fence else ''} -> {folder}",
+                err=True,
+            )
         code, summary = run_controller(
-            plan, folder, LiveView(live=not no_live, quiet=quiet),
-            extra_summary=lambda c: {"hidden_targets": swarm.targets.tolist(), "speedup": speedup, "seed": seed,
-                                     "knowledge_radio": {"forwarded": swarm.radio.forwarded,
-                                                         "lost": swarm.radio.dropped}})
+            plan,
+            folder,
+            LiveView(live=not no_live, quiet=quiet),
+            extra_summary=lambda c: {
+                "hidden_targets": swarm.targets.tolist(),
+                "speedup": speedup,
+                "seed": seed,
+                "knowledge_radio": {"forwarded": swarm.radio.forwarded, "lost": swarm.radio.dropped},
+            },
+        )
     draw_mission(folder, grid, swarm.targets)
     _finish(code, folder, summary, quiet)
 
@@ -165,8 +210,12 @@ def demo_command(uavs: int, seed: int, out: Path | None, policy: str | None, mis
 @click.command("fly")
 @click.argument("mission_file", type=click.Path(path_type=Path))
 @click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Recording folder (default runs/<mission name>-YYYYmmdd-HHMMSS).")
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Recording folder (default runs/<mission name>-YYYYmmdd-HHMMSS).",
+)
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the policy's random draws.")
 @view_options
 def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
@@ -188,17 +237,33 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
 
 @click.command("agent")
 @click.argument("mission_file", type=click.Path(path_type=Path))
-@click.option("--vehicle", "vehicles", multiple=True, required=True,
-              help="Name of the vehicle (from the mission's [[vehicles]]) this process flies; repeatable.")
-@click.option("--detector", default=None,
-              help="Local UDP socket the onboard detector writes its TUNNEL reports to, udp:HOST:PORT "
-                   "(default: reports arrive on the vehicle's MAVLink link).")
+@click.option(
+    "--vehicle",
+    "vehicles",
+    multiple=True,
+    required=True,
+    help="Name of the vehicle (from the mission's [[vehicles]]) this process flies; repeatable.",
+)
+@click.option(
+    "--detector",
+    default=None,
+    help="Local UDP socket the onboard detector writes its TUNNEL reports to, udp:HOST:PORT "
+    "(default: reports arrive on the vehicle's MAVLink link).",
+)
 @click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Recording folder.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @view_options
-def agent_command(mission_file: Path, vehicles: tuple[str, ...], detector: str | None, yes: bool,
-                  out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
+def agent_command(
+    mission_file: Path,
+    vehicles: tuple[str, ...],
+    detector: str | None,
+    yes: bool,
+    out: Path | None,
+    seed: int,
+    quiet: bool,
+    no_live: bool,
+) -> None:
     """Onboard mode: fly one vehicle (on its companion computer); peers over the knowledge channel."""
     from swarmctl.mission.config import load_mission
     from swarmctl.mission.service import LiveView, describe, plan_from_config, run_controller

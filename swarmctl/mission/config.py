@@ -40,8 +40,23 @@ END_ACTIONS = ("land", "rtl", "hover")
 AUTOPILOTS = ("ardupilot", "px4")
 OBSERVATION_WINDOW = 20  # F: the controller observes 20 x 20 windows, like the simulator
 
-_MISSION_KEYS = {"name", "id", "grid", "area", "buildings", "cell_size", "altitude", "policy", "step_period",
-                 "step_timeout", "time_limit", "end_action", "signing_key", "gcs", "fence"}
+_MISSION_KEYS = {
+    "name",
+    "id",
+    "grid",
+    "area",
+    "buildings",
+    "cell_size",
+    "altitude",
+    "policy",
+    "step_period",
+    "step_timeout",
+    "time_limit",
+    "end_action",
+    "signing_key",
+    "gcs",
+    "fence",
+}
 _KNOWLEDGE_KEYS = {"channel", "digest_every"}
 _VEHICLE_KEYS = {"name", "connection", "sysid", "autopilot", "detector"}
 _TOP_KEYS = {"mission", "knowledge", "vehicles"}
@@ -93,8 +108,12 @@ def _number(path, table, key, where, default, minimum=None, integer=False):
     value = table.get(key, default)
     kinds = (int,) if integer else (int, float)
     if isinstance(value, bool) or not isinstance(value, kinds):
-        raise _fail(path, f"{where}{key}", f"must be {'an integer' if integer else 'a number'}, not {value!r}",
-                    f"write for example {key} = {default}")
+        raise _fail(
+            path,
+            f"{where}{key}",
+            f"must be {'an integer' if integer else 'a number'}, not {value!r}",
+            f"write for example {key} = {default}",
+        )
     if minimum is not None and value < minimum:
         raise _fail(path, f"{where}{key}", f"= {value} is below {minimum}", f"use a value >= {minimum}")
     return value
@@ -108,7 +127,12 @@ def _file(path: Path, table: dict, key: str, where: str) -> Path | None:
         raise _fail(path, f"{where}{key}", "must be a file path string", f'write {key} = "path/to/file"')
     resolved = (path.parent / value).resolve()
     if not resolved.is_file():
-        raise _fail(path, f"{where}{key}", f"names {value!r}, which does not exist", "fix the path (relative to the mission file)")
+        raise _fail(
+            path,
+            f"{where}{key}",
+            f"names {value!r}, which does not exist",
+            "fix the path (relative to the mission file)",
+        )
     return resolved
 
 
@@ -136,13 +160,17 @@ def load_mission(path: str | Path) -> MissionConfig:
     if grid is None and area is None:
         raise _fail(path, "mission.grid", "is missing", "give grid (from `swarmctl plan`) or area")
     if grid is not None and (area is not None or buildings is not None):
-        raise _fail(path, "mission.grid", "is given together with area/buildings", "give either grid or area (+ buildings)")
+        raise _fail(
+            path, "mission.grid", "is given together with area/buildings", "give either grid or area (+ buildings)"
+        )
     end_action = mission.get("end_action", "rtl")
     if end_action not in END_ACTIONS:
         raise _fail(path, "mission.end_action", f"= {end_action!r} is unknown", f"use one of {', '.join(END_ACTIONS)}")
     policy = mission.get("policy")
     if not isinstance(policy, str) or not policy:
-        raise _fail(path, "mission.policy", "is missing", 'write for example policy = "ddql:models/cluster-2uav.pt" or "la:4"')
+        raise _fail(
+            path, "mission.policy", "is missing", 'write for example policy = "ddql:models/cluster-2uav.pt" or "la:4"'
+        )
     if policy.startswith(("ddql:", "ddql-greedy:")):
         from swarmctl.policy.checkpoint import load_checkpoint
         from swarmctl.policy.ddql import split_options
@@ -152,8 +180,12 @@ def load_mission(path: str | Path) -> MissionConfig:
         model, options = split_options(rest)
         model_path = (path.parent / model).resolve()
         if not model_path.is_file():
-            raise _fail(path, "mission.policy", f"names the model {model!r}, which does not exist",
-                        "fix the path (relative to the mission file)")
+            raise _fail(
+                path,
+                "mission.policy",
+                f"names the model {model!r}, which does not exist",
+                "fix the path (relative to the mission file)",
+            )
         policy = f"{kind}:{model_path}{options}"
         try:
             load_checkpoint(model_path, window=OBSERVATION_WINDOW)
@@ -178,7 +210,9 @@ def load_mission(path: str | Path) -> MissionConfig:
 
     vehicles_raw = data.get("vehicles")
     if not isinstance(vehicles_raw, list) or not vehicles_raw:
-        raise _fail(path, "[[vehicles]]", "is missing", "add one [[vehicles]] table per vehicle (name, connection, sysid)")
+        raise _fail(
+            path, "[[vehicles]]", "is missing", "add one [[vehicles]] table per vehicle (name, connection, sysid)"
+        )
     vehicles: list[VehicleSpec] = []
     for i, v in enumerate(vehicles_raw):
         w = f"vehicles[{i}]."
@@ -203,43 +237,77 @@ def load_mission(path: str | Path) -> MissionConfig:
         detector = v.get("detector")
         if detector is not None:
             host, _, port = str(detector).removeprefix("udp:").rpartition(":")
-            if not isinstance(detector, str) or not detector.startswith("udp:") or not host or not port.isdigit() \
-                    or not 0 < int(port) < 65536:
-                raise _fail(path, f"{w}detector", f"= {detector!r} is not a UDP address",
-                            'write for example detector = "udp:127.0.0.1:14650"')
+            if (
+                not isinstance(detector, str)
+                or not detector.startswith("udp:")
+                or not host
+                or not port.isdigit()
+                or not 0 < int(port) < 65536
+            ):
+                raise _fail(
+                    path,
+                    f"{w}detector",
+                    f"= {detector!r} is not a UDP address",
+                    'write for example detector = "udp:127.0.0.1:14650"',
+                )
         for other in vehicles:
             if other.name == name:
                 raise _fail(path, f"{w}name", f"{name!r} is listed twice", "give every vehicle its own name")
             if other.sysid == sysid and other.connection == connection:
-                raise _fail(path, f"{w}sysid", f"{sysid} clashes with {other.name!r} on the same link",
-                            "give every vehicle its own system id (SYSID_THISMAV)")
+                raise _fail(
+                    path,
+                    f"{w}sysid",
+                    f"{sysid} clashes with {other.name!r} on the same link",
+                    "give every vehicle its own system id (SYSID_THISMAV)",
+                )
             if other.sysid == sysid:
-                raise _fail(path, f"{w}sysid", f"{sysid} is also {other.name!r}'s system id",
-                            "system ids must be unique in a swarm (SYSID_THISMAV)")
+                raise _fail(
+                    path,
+                    f"{w}sysid",
+                    f"{sysid} is also {other.name!r}'s system id",
+                    "system ids must be unique in a swarm (SYSID_THISMAV)",
+                )
         vehicles.append(VehicleSpec(name, connection, sysid, autopilot, detector))
 
     return MissionConfig(
-        path=path.resolve(), name=str(mission.get("name", path.stem)), mission_id=mission_id, vehicles=vehicles,
-        policy=policy, grid=grid, area=area, buildings=buildings,
+        path=path.resolve(),
+        name=str(mission.get("name", path.stem)),
+        mission_id=mission_id,
+        vehicles=vehicles,
+        policy=policy,
+        grid=grid,
+        area=area,
+        buildings=buildings,
         cell_size=_number(path, mission, "cell_size", where, 10.0, 0.1),
         altitude=_number(path, mission, "altitude", where, 40.0, 2.0),
         step_period=_number(path, mission, "step_period", where, 1.0, 0.0),
         step_timeout=_number(path, mission, "step_timeout", where, 30.0, 0.1),
         time_limit=_number(path, mission, "time_limit", where, 900.0, 1.0),
-        end_action=end_action, signing_key=_file(path, mission, "signing_key", where),
+        end_action=end_action,
+        signing_key=_file(path, mission, "signing_key", where),
         knowledge_channel=knowledge.get("channel"),
         digest_every=_number(path, knowledge, "digest_every", "knowledge.", 5, 1, integer=True),
         gcs=_gcs(path, mission),
-        fence=_flag(path, mission, "fence", where, False,
-                    "to upload the search area's boundary to every vehicle as its geofence"),
+        fence=_flag(
+            path,
+            mission,
+            "fence",
+            where,
+            False,
+            "to upload the search area's boundary to every vehicle as its geofence",
+        ),
     )
 
 
 def _flag(path: Path, table: dict, key: str, where: str, default: bool, meaning: str) -> bool:
     value = table.get(key, default)
     if not isinstance(value, bool):
-        raise _fail(path, f"{where}{key}", f"must be true or false, not {value!r}",
-                    f"write {key} = true {meaning}, or leave it out")
+        raise _fail(
+            path,
+            f"{where}{key}",
+            f"must be true or false, not {value!r}",
+            f"write {key} = true {meaning}, or leave it out",
+        )
     return value
 
 
@@ -248,8 +316,12 @@ def _gcs(path: Path, mission: dict) -> str | None:
     if value is None:
         return None
     if not isinstance(value, str) or not value.startswith("udpout:"):
-        raise _fail(path, "mission.gcs", f"= {value!r} is not a UDP address to send to",
-                    'write for example gcs = "udpout:127.0.0.1:14550" (QGroundControl listens there)')
+        raise _fail(
+            path,
+            "mission.gcs",
+            f"= {value!r} is not a UDP address to send to",
+            'write for example gcs = "udpout:127.0.0.1:14550" (QGroundControl listens there)',
+        )
     _check_connection(path, "mission.gcs", value)
     return value
 

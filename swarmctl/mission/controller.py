@@ -31,9 +31,10 @@ import asyncio
 import logging
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -56,8 +57,18 @@ AIRBORNE_M = 1.0  # a vehicle this high above home (or higher) is flying, not la
 
 # agent states
 CONNECT, PREFLIGHT, TAKEOFF, SEARCH, HOVER, LOST, REJOIN, OVERRIDE, LOW_BATTERY, ENDED, FAILED = (
-    "connect", "preflight", "takeoff", "search", "hover", "lost", "rejoin", "override", "low battery", "ended",
-    "failed")
+    "connect",
+    "preflight",
+    "takeoff",
+    "search",
+    "hover",
+    "lost",
+    "rejoin",
+    "override",
+    "low battery",
+    "ended",
+    "failed",
+)
 
 
 @dataclass
@@ -183,8 +194,14 @@ class _TapSocket:
 class Controller:
     """Flies one mission (ground mode: every vehicle of the plan; onboard mode: a plan of one)."""
 
-    def __init__(self, plan: MissionPlan, recorder: Recorder, *, view: Callable[["Controller"], None] | None = None,
-                 vehicle_factory: Callable[[VehicleSpec, Any], Any] | None = None):
+    def __init__(
+        self,
+        plan: MissionPlan,
+        recorder: Recorder,
+        *,
+        view: Callable[[Controller], None] | None = None,
+        vehicle_factory: Callable[[VehicleSpec, Any], Any] | None = None,
+    ):
         self.plan = plan
         self.rec = recorder
         self.view = view
@@ -222,9 +239,16 @@ class Controller:
 
     async def run(self) -> str:
         """Fly the mission; returns the outcome ("complete", "time limit", "failed", "interrupted")."""
-        self.rec.event("mission", name=self.plan.name, policy=self.plan.policy, altitude=self.plan.altitude,
-                       end_action=self.plan.end_action, grid=[self.grid.width, self.grid.height],
-                       vehicles=[v.name for v in self.plan.vehicles], fence=self.fence)
+        self.rec.event(
+            "mission",
+            name=self.plan.name,
+            policy=self.plan.policy,
+            altitude=self.plan.altitude,
+            end_action=self.plan.end_action,
+            grid=[self.grid.width, self.grid.height],
+            vehicles=[v.name for v in self.plan.vehicles],
+            fence=self.fence,
+        )
         try:
             await self._open()
             await self._start_all()
@@ -267,8 +291,14 @@ class Controller:
                 self.sources.append(UdpSensorSource(feed, host, port).start())
             peer = plan.knowledge_peer or ("127.0.0.1", 14600)
             push = plan.knowledge_push if plan.knowledge_push is not None else len(plan.vehicles) <= 12
-            exchange = KnowledgeExchange(Knowledge(w, h, vehicle_id=i), plan.mission_id, peer, system_id=spec.sysid,
-                                         digest_every=plan.digest_every, push=push)
+            exchange = KnowledgeExchange(
+                Knowledge(w, h, vehicle_id=i),
+                plan.mission_id,
+                peer,
+                system_id=spec.sysid,
+                digest_every=plan.digest_every,
+                push=push,
+            )
             exchange.sock = _TapSocket(exchange.sock, self.rec)
             self.agents.append(Agent(i, spec, vehicle, exchange, feed))
 
@@ -324,7 +354,7 @@ class Controller:
             a.cell = cell
             await self._sense_and_share(a, moved=True, since=0.0)
             self._state(a, SEARCH)
-        except (MavlinkError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, MavlinkError) as exc:
             a.error = str(exc)
             self._state(a, FAILED, error=str(exc))
 
@@ -335,13 +365,15 @@ class Controller:
         fence = self.fence
         assert fence is not None
         if not fence_contains(fence, home.lat, home.lon):
-            why = (f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
-                   "boundary); launch it inside the area, or fly without fence")
+            why = (
+                f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
+                "boundary); launch it inside the area, or fly without fence"
+            )
             self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=why)
             raise MavlinkError(why)
         try:
             await self._until_stopped(a.vehicle.upload_fence(fence))
-        except (MavlinkError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, MavlinkError) as exc:
             self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=str(exc))
             raise MavlinkError(f"{exc}; without its fence {a.name} does not take off") from None
         if not self.stopping:
@@ -408,7 +440,9 @@ class Controller:
         finally:
             if not task.done():
                 await _cancel(task)
-            elif not task.cancelled() and task.exception() is not None and not isinstance(task.exception(), MavlinkError):
+            elif (
+                not task.cancelled() and task.exception() is not None and not isinstance(task.exception(), MavlinkError)
+            ):
                 raise task.exception()
 
     async def _sense_and_share(self, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
@@ -417,19 +451,32 @@ class Controller:
         on_target = a.state == HOVER
         found: list[tuple[int, int]] = []
         if moved and a.cell is not None:
-            report = await a.feed.wait_report(a.cell, since, self.plan.sense_timeout,
-                                              abort=lambda: a.vehicle.lost or self.stopping)
+            report = await a.feed.wait_report(
+                a.cell, since, self.plan.sense_timeout, abort=lambda: a.vehicle.lost or self.stopping
+            )
             if report is None:
                 self.rec.event("no_report", vehicle=a.name, cell=a.cell, step=self.step)
                 ex.step(self.step, a.cell, on_target)
             else:
                 found = [tuple(int(v) for v in t) for t in report.targets]
                 fresh = [t for t in found if t not in kn.targets]
-                ex.step(self.step, a.cell, on_target, report.cells, report.phi, report.obstacle,
-                        targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None)
+                ex.step(
+                    self.step,
+                    a.cell,
+                    on_target,
+                    report.cells,
+                    report.phi,
+                    report.obstacle,
+                    targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
+                )
                 if fresh:
-                    self.rec.event("targets", vehicle=a.name, cells=fresh, step=self.step,
-                                   latlon=[self.grid.cell_to_latlon(*c) for c in fresh])
+                    self.rec.event(
+                        "targets",
+                        vehicle=a.name,
+                        cells=fresh,
+                        step=self.step,
+                        latlon=[self.grid.cell_to_latlon(*c) for c in fresh],
+                    )
         elif a.cell is not None:
             ex.step(self.step, a.cell, on_target)
         return found
@@ -470,7 +517,7 @@ class Controller:
             if wait > 0:
                 try:
                     await asyncio.wait_for(self._stop.wait(), wait)
-                except asyncio.TimeoutError:
+                except TimeoutError:
                     pass
             elif not live:
                 await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
@@ -539,7 +586,7 @@ class Controller:
     async def _quietly(self, coro: Any) -> None:
         try:
             await coro
-        except (MavlinkError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, MavlinkError) as exc:
             log.warning("%s", exc)
 
     async def _rejoin(self, a: Agent) -> None:
@@ -585,15 +632,19 @@ class Controller:
         t = time.monotonic()
         choices = self.policy.choose([a.knowledge for a in searching])
         self.decide_times.append(time.monotonic() - t)
-        proposed = {a.index: (a.cell[0] + int(MOVES[c.move][0]), a.cell[1] + int(MOVES[c.move][1]))
-                    for a, c in zip(searching, choices)}
+        proposed = {
+            a.index: (a.cell[0] + int(MOVES[c.move][0]), a.cell[1] + int(MOVES[c.move][1]))
+            for a, c in zip(searching, choices)
+        }
         # guard every vehicle this process knows of; vehicles not searching stay where they are
         order = [a for a in self.agents if a.cell is not None and a.state != FAILED]
         current = [a.cell for a in order]
         wanted = [proposed.get(a.index, a.cell) for a in order]
         outside = sorted(self._held() - set(current))  # other processes' vehicles: they stay
-        decisions = self.guard.guard_moves(np.array(current + outside, dtype=np.int64).reshape(-1, 2),
-                                           np.array(wanted + outside, dtype=np.int64).reshape(-1, 2))
+        decisions = self.guard.guard_moves(
+            np.array(current + outside, dtype=np.int64).reshape(-1, 2),
+            np.array(wanted + outside, dtype=np.int64).reshape(-1, 2),
+        )
         guarded = {a.index: d for a, d in zip(order, decisions)}
         self.step += 1
         moves: list[tuple[Agent, tuple[int, int]]] = []
@@ -602,14 +653,25 @@ class Controller:
             d = guarded[a.index]
             if d.refused:
                 a.refused += 1
-                self.rec.event("refused", vehicle=a.name, step=self.step, cell=a.cell, proposed=proposed[a.index],
-                               reason=d.refused)
+                self.rec.event(
+                    "refused", vehicle=a.name, step=self.step, cell=a.cell, proposed=proposed[a.index], reason=d.refused
+                )
             if d.cell != a.cell:
                 moves.append((a, d.cell))
             a.steps += 1
-            records.append(dict(vehicle=a.name, sysid=a.spec.sysid, cell=a.cell, obs=c.obs_digest, q=c.q,
-                                move=MOVE_NAMES[c.move], guarded=MOVE_NAMES[_move_index(a.cell, d.cell)],
-                                refused=d.refused, received=a.received_since()))
+            records.append(
+                dict(
+                    vehicle=a.name,
+                    sysid=a.spec.sysid,
+                    cell=a.cell,
+                    obs=c.obs_digest,
+                    q=c.q,
+                    move=MOVE_NAMES[c.move],
+                    guarded=MOVE_NAMES[_move_index(a.cell, d.cell)],
+                    refused=d.refused,
+                    received=a.received_since(),
+                )
+            )
             if c.by:  # the move came from a planner, not from the Q-values recorded
                 records[-1]["by"] = c.by
         since = time.monotonic()
@@ -625,10 +687,14 @@ class Controller:
         t = time.monotonic()
         await asyncio.gather(*(self._sense_and_share(a, a.index in moved, since) for a in live))
         self.wait_times.append(waited + time.monotonic() - t)
-        others = [dict(vehicle=a.name, sysid=a.spec.sysid, state=a.state, cell=a.cell,
-                       received=a.received_since()) for a in self.agents if a not in searching]
-        self.rec.event("step", step=self.step, vehicles=records, others=others,
-                       decide_ms=round(self.decide_times[-1] * 1000, 3))
+        others = [
+            dict(vehicle=a.name, sysid=a.spec.sysid, state=a.state, cell=a.cell, received=a.received_since())
+            for a in self.agents
+            if a not in searching
+        ]
+        self.rec.event(
+            "step", step=self.step, vehicles=records, others=others, decide_ms=round(self.decide_times[-1] * 1000, 3)
+        )
         return bool(moves)
 
     # --- the end ---------------------------------------------------------------------------------------
@@ -679,7 +745,7 @@ class Controller:
                 a.end_state = "landed at home" if action == "rtl" else "landed"
             else:
                 a.end_state = "hovering on target" if a.state == HOVER else "hovering"
-        except (MavlinkError, asyncio.TimeoutError) as exc:
+        except (TimeoutError, MavlinkError) as exc:
             a.end_state = f"end action failed: {exc}"
             self.rec.event("end_action_failed", vehicle=a.name, error=str(exc))
         self._state(a, ENDED, end_state=a.end_state)
@@ -707,10 +773,14 @@ class Controller:
             return dict(rounds=0)
         rounds, waits = np.array(self.round_times[:n]), np.array(self.wait_times[:n])
         own = np.maximum(rounds - waits, 0.0)
-        return dict(rounds=n, decide_mean=round(1000 * float(np.mean(self.decide_times)), 3),
-                    cpu_mean=round(1000 * float(np.mean(self.cpu_times)), 3),
-                    round_mean=round(1000 * float(rounds.mean()), 3), controller_mean=round(1000 * float(own.mean()), 3),
-                    controller_p95=round(1000 * float(np.percentile(own, 95)), 3))
+        return dict(
+            rounds=n,
+            decide_mean=round(1000 * float(np.mean(self.decide_times)), 3),
+            cpu_mean=round(1000 * float(np.mean(self.cpu_times)), 3),
+            round_mean=round(1000 * float(rounds.mean()), 3),
+            controller_mean=round(1000 * float(own.mean()), 3),
+            controller_p95=round(1000 * float(np.percentile(own, 95)), 3),
+        )
 
     def summary(self, extra: dict | None = None) -> dict:
         now = self.ended or time.monotonic()
@@ -721,32 +791,53 @@ class Controller:
         vehicles = []
         for a in self.agents:
             c = a.exchange.counters()
-            vehicles.append(dict(
-                name=a.name, sysid=a.spec.sysid, autopilot=a.spec.autopilot, final_state=a.state,
-                end_action=a.end_action, end_state=a.end_state, cell=a.cell, steps=a.steps,
-                distance_m=round(a.distance, 1), refused_moves=a.refused, step_timeouts=a.timeouts,
-                sensor_reports=a.feed.reports, error=a.error,
-                knowledge_sent=c.get("sent_packets", 0), knowledge_received=c.get("received_packets", 0),
-                knowledge_rejected=c.get("rejected", 0),
-                mavlink_lost=self.lost_packets.get(a.spec.sysid, 0)))
-        links = [dict(connection=k, sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
-                 for k, v in self.links.items()]
+            vehicles.append(
+                dict(
+                    name=a.name,
+                    sysid=a.spec.sysid,
+                    autopilot=a.spec.autopilot,
+                    final_state=a.state,
+                    end_action=a.end_action,
+                    end_state=a.end_state,
+                    cell=a.cell,
+                    steps=a.steps,
+                    distance_m=round(a.distance, 1),
+                    refused_moves=a.refused,
+                    step_timeouts=a.timeouts,
+                    sensor_reports=a.feed.reports,
+                    error=a.error,
+                    knowledge_sent=c.get("sent_packets", 0),
+                    knowledge_received=c.get("received_packets", 0),
+                    knowledge_rejected=c.get("rejected", 0),
+                    mavlink_lost=self.lost_packets.get(a.spec.sysid, 0),
+                )
+            )
+        links = [
+            dict(connection=k, sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
+            for k, v in self.links.items()
+        ]
         hovering = [a.cell for a in self.agents if a.state == HOVER or a.end_state == "hovering on target"]
         out = dict(
-            mission=self.plan.name, policy=self.plan.policy, outcome=self.outcome,
-            targets_found=[dict(cell=list(c), lat=self.grid.cell_to_latlon(*c)[0], lon=self.grid.cell_to_latlon(*c)[1],
-                                step=s) for c, s in sorted(found.items())],
+            mission=self.plan.name,
+            policy=self.plan.policy,
+            outcome=self.outcome,
+            targets_found=[
+                dict(cell=list(c), lat=self.grid.cell_to_latlon(*c)[0], lon=self.grid.cell_to_latlon(*c)[1], step=s)
+                for c, s in sorted(found.items())
+            ],
             vehicles_on_targets=[list(c) for c in hovering if c is not None],
             time_s=round(now - self.started, 2),
             search_time_s=round(now - self.search_started, 2) if self.search_started else 0.0,
-            steps=self.step, vehicles=vehicles,
+            steps=self.step,
+            vehicles=vehicles,
             messages=dict(
                 mavlink_sent=sum(v.stats.sent for v in self.links.values()),
                 mavlink_received=sum(v.stats.received for v in self.links.values()),
                 mavlink_lost=sum(self.lost_packets.values()),
                 knowledge_sent=sum(v["knowledge_sent"] for v in vehicles),
                 knowledge_received=sum(v["knowledge_received"] for v in vehicles),
-                knowledge_rejected=sum(v["knowledge_rejected"] for v in vehicles)),
+                knowledge_rejected=sum(v["knowledge_rejected"] for v in vehicles),
+            ),
             links=links,
             overhead_ms=self.overhead_ms(),
         )

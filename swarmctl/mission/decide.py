@@ -159,9 +159,11 @@ class FieldPolicy:
 
             p = make_ddql_policy(self.spec)
             if p.net.window != window:
-                raise InputError(f"policy {self.spec!r}: the model was trained for {p.net.window} x {p.net.window} "
-                                 f"observations, the controller builds {window} x {window}; use a model trained "
-                                 f"with --window {window}")
+                raise InputError(
+                    f"policy {self.spec!r}: the model was trained for {p.net.window} x {p.net.window} "
+                    f"observations, the controller builds {window} x {window}; use a model trained "
+                    f"with --window {window}"
+                )
             self.net, self.tau, self.kind = p, p.tau, "ddql"
         elif kind == "la":
             self.lookahead = make_policy(self.spec)
@@ -170,8 +172,10 @@ class FieldPolicy:
         elif self.spec in ("frontier", "random"):
             self.kind = self.spec
         else:
-            raise InputError(f"policy {self.spec!r} cannot fly a mission: use one of {FIELD_POLICIES} "
-                             "(lawnmower plans every vehicle's lanes at once; oracle reads the truth)")
+            raise InputError(
+                f"policy {self.spec!r} cannot fly a mission: use one of {FIELD_POLICIES} "
+                "(lawnmower plans every vehicle's lanes at once; oracle reads the truth)"
+            )
 
     def choose(self, knowledges: list[Knowledge]) -> list[Choice]:
         if not knowledges:
@@ -188,8 +192,11 @@ class FieldPolicy:
         cells = np.array([kn.own_position.cell for kn in knowledges], dtype=np.int64)[None]
         # a searching agent is never on a free known target (it would hover): with hover it always moves
         hover_here = np.zeros(cells.shape[:2], dtype=bool) if self.net.hover else None
-        blocked = np.stack([_KnowledgeWorld(kn).known_obstacles()[0, 0] for kn in knowledges])[None] \
-            if self.net.mask else None
+        blocked = (
+            np.stack([_KnowledgeWorld(kn).known_obstacles()[0, 0] for kn in knowledges])[None]
+            if self.net.mask
+            else None
+        )
         moves = choose(q, allowed_moves(cells, hover_here, blocked), self.tau, self.rng)[0]
         by = [None] * len(knowledges)
         if self.net.straggler_frontier:
@@ -197,11 +204,12 @@ class FieldPolicy:
                 if _last_searching(kn):
                     moves[i], by[i] = _frontier_move(kn, self.rng, self.window, self.fov), "frontier"
         q = q[0]
-        return [Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv], b)
-                for m, o, qv, b in zip(moves, obs[0], q, by)]
+        return [
+            Choice(int(m), hashlib.sha1(o.tobytes()).hexdigest()[:16], [round(float(v), 4) for v in qv], b)
+            for m, o, qv, b in zip(moves, obs[0], q, by)
+        ]
 
 
 def _last_searching(kn: Knowledge) -> bool:
     """Every other vehicle this agent knows of hovers on a target: it is the last one searching."""
     return bool(kn.peers) and all(p.on_target for p in kn.peers.values())
-

@@ -94,22 +94,26 @@ class SensorFeed:
         seen = self._targets.get(message.cell)
         if seen is not None and now - seen[0] < 5.0:
             targets = seen[1]
-        self.latest[message.cell] = SensorReport(message.cell, now, message.cells, dequantise_phi(message.phi),
-                                                 message.obstacle, targets)
+        self.latest[message.cell] = SensorReport(
+            message.cell, now, message.cells, dequantise_phi(message.phi), message.obstacle, targets
+        )
         self.reports += 1
         if self._changed is not None:
             self._changed.set()
 
     def listener(self, sysid: int):
         """A MavlinkLink listener taking the TUNNEL reports sent by system `sysid`."""
+
         def on_message(msg: Any) -> None:
             if msg.get_type() == "TUNNEL" and msg.get_srcSystem() == sysid:
                 self.on_tunnel(msg.payload_type, bytes(msg.payload), msg.payload_length)
+
         return on_message
 
     # --- waiting ---------------------------------------------------------------------------------------
-    async def wait_report(self, cell: tuple[int, int], since: float, timeout: float,
-                          abort: Any = None) -> SensorReport | None:
+    async def wait_report(
+        self, cell: tuple[int, int], since: float, timeout: float, abort: Any = None
+    ) -> SensorReport | None:
         """The report for `cell` received after `since` (monotonic), or None after `timeout` s (or as
         soon as `abort()` is true)."""
         if self._changed is None:
@@ -125,7 +129,7 @@ class SensorFeed:
             self._changed.clear()
             try:
                 await asyncio.wait_for(self._changed.wait(), min(left, 0.25))
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
 
 
@@ -144,7 +148,7 @@ class UdpSensorSource:
         self.address = self.sock.getsockname()
         self._loop: asyncio.AbstractEventLoop | None = None
 
-    def start(self) -> "UdpSensorSource":
+    def start(self) -> UdpSensorSource:
         self._loop = asyncio.get_running_loop()
         self._loop.add_reader(self.sock.fileno(), self._readable)
         return self
@@ -174,9 +178,18 @@ class SimDetector:
     `attach(mock)` adds a step hook to a MockAutopilot; reports go out on the mock's own MAVLink link,
     or, with `udp=(host, port)`, as datagrams to a local detector socket (the PX4 path)."""
 
-    def __init__(self, grid: Any, targets: np.ndarray, vehicle_index: int, mission_id: int, altitude: float,
-                 fov: float = FOV_CELLS, tolerance: float = 1.0, repeat: float = 1.0,
-                 udp: tuple[str, int] | None = None):
+    def __init__(
+        self,
+        grid: Any,
+        targets: np.ndarray,
+        vehicle_index: int,
+        mission_id: int,
+        altitude: float,
+        fov: float = FOV_CELLS,
+        tolerance: float = 1.0,
+        repeat: float = 1.0,
+        udp: tuple[str, int] | None = None,
+    ):
         self.grid = grid
         w, h = grid.width, grid.height
         self.targets = np.asarray(targets, dtype=np.int64).reshape(-1, 2)
@@ -196,7 +209,7 @@ class SimDetector:
         self.sent_reports = 0
         self._centres = grid.cells_to_latlon(*np.meshgrid(np.arange(w), np.arange(h), indexing="ij"))
 
-    def attach(self, mock: Any) -> "SimDetector":
+    def attach(self, mock: Any) -> SimDetector:
         mock.step_hooks.append(self._hook)
         return self
 

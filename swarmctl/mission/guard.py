@@ -12,8 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-REASONS = ("outside the grid", "blocked cell", "more than one move", "held by another vehicle",
-           "another vehicle is moving there")
+REASONS = (
+    "outside the grid",
+    "blocked cell",
+    "more than one move",
+    "held by another vehicle",
+    "another vehicle is moving there",
+)
 
 
 @dataclass

@@ -1,15 +1,15 @@
 """The mission recording: one folder per mission.
 
-    mission.tlog     every MAVLink packet the controller sent or received (vehicle links and the
-                     knowledge channel), in the standard telemetry-log format: for each packet an
-                     8-byte big-endian timestamp (microseconds since 1970) then the raw packet, as
-                     MAVProxy and QGroundControl write it (pymavlink's mavlogdump.py reads it)
-    events.jsonl     one JSON object per line: state changes, link events, guard refusals and one
-                     "step" record per decision step (each vehicle's cell, observation digest,
-                     Q-values, chosen and guarded move, knowledge received)
-    mission.toml     a copy of the mission file (when there is one)
-    grid.npz         a copy of the grid
-    summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
+mission.tlog     every MAVLink packet the controller sent or received (vehicle links and the
+                 knowledge channel), in the standard telemetry-log format: for each packet an
+                 8-byte big-endian timestamp (microseconds since 1970) then the raw packet, as
+                 MAVProxy and QGroundControl write it (pymavlink's mavlogdump.py reads it)
+events.jsonl     one JSON object per line: state changes, link events, guard refusals and one
+                 "step" record per decision step (each vehicle's cell, observation digest,
+                 Q-values, chosen and guarded move, knowledge received)
+mission.toml     a copy of the mission file (when there is one)
+grid.npz         a copy of the grid
+summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
 """
 
 from __future__ import annotations

@@ -17,8 +17,13 @@ from swarmctl.mission.controller import HOVER, Controller, MissionPlan
 from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.recorder import Recorder
 
-OUTCOME_EXIT = {"complete": EXIT_OK, "partial": EXIT_FAILED, "time limit": EXIT_FAILED, "failed": EXIT_FAILED,
-                "interrupted": EXIT_INTERRUPTED}
+OUTCOME_EXIT = {
+    "complete": EXIT_OK,
+    "partial": EXIT_FAILED,
+    "time limit": EXIT_FAILED,
+    "failed": EXIT_FAILED,
+    "interrupted": EXIT_INTERRUPTED,
+}
 
 
 def load_grid(cfg: MissionConfig) -> Any:
@@ -39,8 +44,13 @@ def channel_address(value: str | None, where: str) -> tuple[str, int]:
     """The knowledge channel (udpout:HOST:PORT) as a (host, port) to send to."""
     if value is None:
         return ("127.0.0.1", 14600)
-    return udpout_address(value, where, "the knowledge channel is a UDP address the agents send to",
-                          "udpout:127.0.0.1:14600", "a MAVLink router or radio")
+    return udpout_address(
+        value,
+        where,
+        "the knowledge channel is a UDP address the agents send to",
+        "udpout:127.0.0.1:14600",
+        "a MAVLink router or radio",
+    )
 
 
 def udpout_address(value: str, where: str, what: str, example: str, hint: str) -> tuple[str, int]:
@@ -49,7 +59,7 @@ def udpout_address(value: str, where: str, what: str, example: str, hint: str) -
 
     ep = parse_connection(value, field=where)
     if ep.kind != "udpout":
-        raise InputError(f"{where} = {value!r}: {what}; write for example \"{example}\" ({hint})")
+        raise InputError(f'{where} = {value!r}: {what}; write for example "{example}" ({hint})')
     return (ep.host, int(ep.port))
 
 
@@ -57,12 +67,18 @@ def gcs_address(value: str | None, where: str) -> tuple[str, int] | None:
     """The ground station to forward the vehicles' MAVLink to, if any."""
     if value is None:
         return None
-    return udpout_address(value, where, "the ground station is a UDP address to send to",
-                          "udpout:127.0.0.1:14550", "QGroundControl listens there")
+    return udpout_address(
+        value,
+        where,
+        "the ground station is a UDP address to send to",
+        "udpout:127.0.0.1:14550",
+        "QGroundControl listens there",
+    )
 
 
-def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector: str | None = None,
-                     seed: int = 0) -> MissionPlan:
+def plan_from_config(
+    cfg: MissionConfig, only: list[str] | None = None, detector: str | None = None, seed: int = 0
+) -> MissionPlan:
     """A MissionPlan from a validated mission file; `only` keeps some vehicles (onboard mode)."""
     from swarmctl.mavlink.codec import load_signing_key
 
@@ -79,14 +95,28 @@ def plan_from_config(cfg: MissionConfig, only: list[str] | None = None, detector
     detectors = {i: parse_detector(cfg.vehicles[i].detector) for i in keep if cfg.vehicles[i].detector}
     if detector:
         detectors.update({i: parse_detector(detector) for i in keep})
-    plan = MissionPlan(name=cfg.name, mission_id=cfg.mission_id, grid=grid, vehicles=list(cfg.vehicles),
-                       policy=cfg.policy, altitude=float(cfg.altitude), step_period=float(cfg.step_period),
-                       step_timeout=float(cfg.step_timeout), time_limit=float(cfg.time_limit),
-                       end_action=cfg.end_action, signing_key=key,
-                       knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
-                       digest_every=cfg.digest_every, seed=seed, grid_file=cfg.grid, mission_file=cfg.path,
-                       only=keep if only else None, detectors=detectors,
-                       gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"), fence=cfg.fence)
+    plan = MissionPlan(
+        name=cfg.name,
+        mission_id=cfg.mission_id,
+        grid=grid,
+        vehicles=list(cfg.vehicles),
+        policy=cfg.policy,
+        altitude=float(cfg.altitude),
+        step_period=float(cfg.step_period),
+        step_timeout=float(cfg.step_timeout),
+        time_limit=float(cfg.time_limit),
+        end_action=cfg.end_action,
+        signing_key=key,
+        knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
+        digest_every=cfg.digest_every,
+        seed=seed,
+        grid_file=cfg.grid,
+        mission_file=cfg.path,
+        only=keep if only else None,
+        detectors=detectors,
+        gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"),
+        fence=cfg.fence,
+    )
     return plan
 
 
@@ -103,14 +133,18 @@ def parse_detector(value: str) -> tuple[str, int]:
 
 def describe(plan: MissionPlan) -> list[str]:
     g = plan.grid
-    lines = [f"mission {plan.name!r} (id {plan.mission_id}), policy {plan.policy}",
-             f"grid {g.width} x {g.height} cells of {g.cell:g} m, {int(g.blocked.sum())} blocked"
-             + (f", from {plan.grid_file}" if plan.grid_file else ""),
-             f"altitude {plan.altitude:g} m above home, end action {plan.end_action}, time limit {plan.time_limit:g} s",
-             "fence: the area's boundary, uploaded to every vehicle before take-off" if plan.fence
-             else "fence: none (the vehicles' own fence settings apply)",
-             f"knowledge channel udp:{plan.knowledge_peer[0]}:{plan.knowledge_peer[1]}"
-             if plan.knowledge_peer else "knowledge channel: default"]
+    lines = [
+        f"mission {plan.name!r} (id {plan.mission_id}), policy {plan.policy}",
+        f"grid {g.width} x {g.height} cells of {g.cell:g} m, {int(g.blocked.sum())} blocked"
+        + (f", from {plan.grid_file}" if plan.grid_file else ""),
+        f"altitude {plan.altitude:g} m above home, end action {plan.end_action}, time limit {plan.time_limit:g} s",
+        "fence: the area's boundary, uploaded to every vehicle before take-off"
+        if plan.fence
+        else "fence: none (the vehicles' own fence settings apply)",
+        f"knowledge channel udp:{plan.knowledge_peer[0]}:{plan.knowledge_peer[1]}"
+        if plan.knowledge_peer
+        else "knowledge channel: default",
+    ]
     for i, v in enumerate(plan.vehicles):
         if plan.only is not None and i not in plan.only:
             continue
@@ -136,8 +170,9 @@ class LiveView:
         found = len(set().union(*(a.knowledge.targets for a in c.agents))) if c.agents else 0
         hovering = sum(a.state == HOVER or a.end_state == "hovering on target" for a in c.agents)
         elapsed = now - c.search_started if c.search_started else 0.0
-        progress = (f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  "
-                    f"{elapsed:.1f} s" + (f"  -> {c.outcome}" if c.outcome else ""))
+        progress = f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  {elapsed:.1f} s" + (
+            f"  -> {c.outcome}" if c.outcome else ""
+        )
         if not self.live:
             if now - self._last >= self.every or c.outcome:
                 self._last = now
@@ -147,8 +182,10 @@ class LiveView:
         for a in c.agents:
             cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
             battery = a.battery()
-            rows.append(f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
-                        f"{a.link_text():<5} {a.targets_known:>7}")
+            rows.append(
+                f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
+                f"{a.link_text():<5} {a.targets_known:>7}"
+            )
         rows.append(progress)
         out = (f"\x1b[{self._lines}F\x1b[J" if self._lines else "") + "\n".join(rows) + "\n"
         self.stream.write(out)
@@ -156,8 +193,9 @@ class LiveView:
         self._lines = len(rows)
 
 
-def run_controller(plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
-                   ) -> tuple[int, dict]:
+def run_controller(
+    plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
+) -> tuple[int, dict]:
     """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording; exit status."""
     rec = Recorder(folder)
     rec.copy_inputs(plan.mission_file, plan.grid_file, plan.grid)
@@ -193,9 +231,19 @@ def write_targets_geojson(path: Path, summary: dict) -> Path:
     """The targets found as GeoJSON points (lon, lat), with their cell and the step of the first report."""
     import json
 
-    features = [{"type": "Feature", "geometry": {"type": "Point", "coordinates": [round(t["lon"], 7), round(t["lat"], 7)]},
-                 "properties": {"cell_x": t["cell"][0], "cell_y": t["cell"][1], "first_step": t["step"],
-                                "mission": summary["mission"]}} for t in summary["targets_found"]]
+    features = [
+        {
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [round(t["lon"], 7), round(t["lat"], 7)]},
+            "properties": {
+                "cell_x": t["cell"][0],
+                "cell_y": t["cell"][1],
+                "first_step": t["step"],
+                "mission": summary["mission"],
+            },
+        }
+        for t in summary["targets_found"]
+    ]
     path.write_text(json.dumps({"type": "FeatureCollection", "features": features}, indent=1) + "\n")
     return path
 
@@ -242,11 +290,17 @@ def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out:
         if v.get("cell") is not None:
             paths.setdefault(v["name"], []).append(v["cell"])
     fig, ax = plt.subplots(figsize=(7, 7))
-    ax.imshow(grid.blocked.T, origin="lower", cmap="Greys", vmin=0, vmax=1.6,
-              extent=(-0.5, grid.width - 0.5, -0.5, grid.height - 0.5))
+    ax.imshow(
+        grid.blocked.T,
+        origin="lower",
+        cmap="Greys",
+        vmin=0,
+        vmax=1.6,
+        extent=(-0.5, grid.width - 0.5, -0.5, grid.height - 0.5),
+    )
     for name, cells in sorted(paths.items()):
         xy = np.array(cells, dtype=float)
-        line, = ax.plot(xy[:, 0], xy[:, 1], "-", lw=1.5, alpha=0.85, label=name)
+        (line,) = ax.plot(xy[:, 0], xy[:, 1], "-", lw=1.5, alpha=0.85, label=name)
         ax.plot(xy[0, 0], xy[0, 1], "o", color=line.get_color(), ms=6)
         ax.plot(xy[-1, 0], xy[-1, 1], "s", color=line.get_color(), ms=8, mfc="none", mew=2)
     if hidden is not None and len(hidden):
@@ -258,8 +312,10 @@ def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out:
     ax.set_ylim(-0.5, grid.height - 0.5)
     ax.set_xlabel(f"x (cells of {grid.cell:g} m, east)")
     ax.set_ylabel("y (cells, north)")
-    ax.set_title(f"{summary['mission']}: {summary['outcome']}, {len(found)} targets found, "
-                 f"{summary['steps']} steps, {summary['search_time_s']:.0f} s")
+    ax.set_title(
+        f"{summary['mission']}: {summary['outcome']}, {len(found)} targets found, "
+        f"{summary['steps']} steps, {summary['search_time_s']:.0f} s"
+    )
     ax.legend(loc="upper right", fontsize=8, framealpha=0.85)
     fig.tight_layout()
     path = out or folder / "mission.png"

@@ -53,8 +53,7 @@ def start_cells(grid: Any, count: int) -> list[tuple[int, int]]:
     raise ValueError(f"the grid's free region has room for {len(chosen)} vehicles, not {count}")
 
 
-def hide_targets(grid: Any, count: int, seed: int, avoid: list[tuple[int, int]], min_distance: int = 6
-                 ) -> np.ndarray:
+def hide_targets(grid: Any, count: int, seed: int, avoid: list[tuple[int, int]], min_distance: int = 6) -> np.ndarray:
     """`count` distinct target cells in the largest free region, at least `min_distance` cells
     (Manhattan) from every launch cell, drawn with `seed`."""
     rng = np.random.default_rng(seed)
@@ -104,7 +103,7 @@ class SimSwarm:
         self.targets = np.asarray(self.targets, dtype=np.int64).reshape(-1, 2)
         self.autopilots = list(self.autopilots or ["ardupilot"] * self.uavs)
 
-    def start(self) -> "SimSwarm":
+    def start(self) -> SimSwarm:
         try:
             self.radio = Radio(self.channel or Channel("ideal"), seed=self.seed)
             for i, cell in enumerate(self.starts):
@@ -117,13 +116,22 @@ class SimSwarm:
                     self.detector_ports[i] = ("127.0.0.1", free_udp_port())
                 else:
                     connect, connection = "udpin:127.0.0.1:0", None
-                mock = MockAutopilot(sysid=sysid, connect=connect, home=(lat, lon, HOME_AMSL), autopilot=autopilot,
-                                     speedup=self.speedup, ready_after=2.0, gcs_failsafe_timeout=self.gcs_failsafe,
-                                     speed=self.speed, seed=self.seed * 1000 + i)
+                mock = MockAutopilot(
+                    sysid=sysid,
+                    connect=connect,
+                    home=(lat, lon, HOME_AMSL),
+                    autopilot=autopilot,
+                    speedup=self.speedup,
+                    ready_after=2.0,
+                    gcs_failsafe_timeout=self.gcs_failsafe,
+                    speed=self.speed,
+                    seed=self.seed * 1000 + i,
+                )
                 if autopilot == "ardupilot":
                     mock.params["FENCE_RADIUS"] = self._fence_radius(lat, lon)
-                det = SimDetector(self.grid, self.targets, i, self.mission_id, self.altitude,
-                                  udp=self.detector_ports.get(i))
+                det = SimDetector(
+                    self.grid, self.targets, i, self.mission_id, self.altitude, udp=self.detector_ports.get(i)
+                )
                 det.attach(mock)
                 self.detectors.append(det)
                 mock.start()
@@ -151,9 +159,18 @@ class SimSwarm:
         kw.setdefault("step_timeout", 10.0)
         kw.setdefault("end_timeout", 60.0)
         kw.setdefault("telemetry_hz", 20.0)
-        return MissionPlan(name="demo", mission_id=self.mission_id, grid=self.grid, vehicles=list(self.specs),
-                           policy=policy, altitude=self.altitude, knowledge_peer=self.radio.address,
-                           seed=self.seed, detectors=dict(self.detector_ports), **kw)
+        return MissionPlan(
+            name="demo",
+            mission_id=self.mission_id,
+            grid=self.grid,
+            vehicles=list(self.specs),
+            policy=policy,
+            altitude=self.altitude,
+            knowledge_peer=self.radio.address,
+            seed=self.seed,
+            detectors=dict(self.detector_ports),
+            **kw,
+        )
 
     def stop(self) -> None:
         for m in self.mocks:
@@ -163,7 +180,7 @@ class SimSwarm:
         if self.radio is not None:
             self.radio.close()
 
-    def __enter__(self) -> "SimSwarm":
+    def __enter__(self) -> SimSwarm:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

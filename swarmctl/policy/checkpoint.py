@@ -25,9 +25,15 @@ def save_checkpoint(path: str | Path, net: QNetwork, world: dict, train: dict, m
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
-        "format": FORMAT, "version": VERSION, "architecture": ARCHITECTURE, "window": net.window,
-        "n_actions": 5, "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
-        "world": world, "train": train, "metadata": metadata,
+        "format": FORMAT,
+        "version": VERSION,
+        "architecture": ARCHITECTURE,
+        "window": net.window,
+        "n_actions": 5,
+        "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
+        "world": world,
+        "train": train,
+        "metadata": metadata,
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(payload, tmp)
@@ -46,23 +52,31 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, ValueError, OSError) as exc:
-        raise InputError(f"{path}: not a swarmctl checkpoint (cannot be read as a torch file: {type(exc).__name__})") from None
+        raise InputError(
+            f"{path}: not a swarmctl checkpoint (cannot be read as a torch file: {type(exc).__name__})"
+        ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise InputError(f"{path}: not a swarmctl checkpoint (no '{FORMAT}' format marker)")
     if payload.get("version") != VERSION:
         raise InputError(f"{path}: checkpoint version {payload.get('version')} is not supported (expected {VERSION})")
     if payload.get("architecture") != ARCHITECTURE:
-        raise InputError(f"{path}: architecture {payload.get('architecture')!r} is not {ARCHITECTURE!r}; "
-                         "retrain with this version of swarmctl")
+        raise InputError(
+            f"{path}: architecture {payload.get('architecture')!r} is not {ARCHITECTURE!r}; "
+            "retrain with this version of swarmctl"
+        )
     f = payload.get("window")
     if window is not None and f != window:
-        raise InputError(f"{path}: the model was trained for {f} x {f} observations, not {window} x {window}; "
-                         f"use --window {f} or a model trained for {window}")
+        raise InputError(
+            f"{path}: the model was trained for {f} x {f} observations, not {window} x {window}; "
+            f"use --window {f} or a model trained for {window}"
+        )
     try:
         net = QNetwork(window=int(f))
         net.load_state_dict(payload["state_dict"])
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: weights do not fit the {ARCHITECTURE} network ({str(exc).splitlines()[0]})") from None
+        raise InputError(
+            f"{path}: weights do not fit the {ARCHITECTURE} network ({str(exc).splitlines()[0]})"
+        ) from None
     net.eval()
     info = {k: v for k, v in payload.items() if k != "state_dict"}
     return net, info

@@ -83,8 +83,16 @@ def env_allowed_moves(env: SearchEnv, hover: bool = True, mask: bool = True) -> 
 
 
 class DDQLPolicy:
-    def __init__(self, path: str, tau: float | None = 0.1, name: str | None = None, remove_taken: bool = True,
-                 hover: bool = True, mask: bool = True, straggler_frontier: bool = False):
+    def __init__(
+        self,
+        path: str,
+        tau: float | None = 0.1,
+        name: str | None = None,
+        remove_taken: bool = True,
+        hover: bool = True,
+        mask: bool = True,
+        straggler_frontier: bool = False,
+    ):
         self.path = path
         self.tau = tau
         self.remove_taken, self.hover, self.mask = remove_taken, hover, mask
@@ -96,8 +104,10 @@ class DDQLPolicy:
 
     def reset(self, env: SearchEnv, rng: np.random.Generator) -> None:
         if env.cfg.window != self.net.window:
-            raise InputError(f"{self.path}: the model was trained for {self.net.window} x {self.net.window} "
-                             f"observations, not {env.cfg.window} x {env.cfg.window}; use --window {self.net.window}")
+            raise InputError(
+                f"{self.path}: the model was trained for {self.net.window} x {self.net.window} "
+                f"observations, not {env.cfg.window} x {env.cfg.window}; use --window {self.net.window}"
+            )
         self.rng = rng
         self.frontier.reset(env, rng.spawn(1)[0])  # its own stream: the network's draws stay as they were
 
@@ -130,11 +140,15 @@ def split_options(rest: str) -> tuple[str, str]:
     path = rest
     while (m := re.search(r":(tau|taken|hover|mask|straggler)=([^:]*)$", path)) is not None:
         path = path[: m.start()]
-    return path, rest[len(path):]
+    return path, rest[len(path) :]
 
 
-_CHOICES = {"taken": ("remove", "keep"), "hover": ("yes", "no"), "mask": ("yes", "no"),
-            "straggler": ("network", "frontier")}
+_CHOICES = {
+    "taken": ("remove", "keep"),
+    "hover": ("yes", "no"),
+    "mask": ("yes", "no"),
+    "straggler": ("network", "frontier"),
+}
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
@@ -155,10 +169,17 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
             raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
     for key, allowed in _CHOICES.items():
         if options.get(key, allowed[0]) not in allowed:
-            raise InputError(f"--policy {spec!r}: {key} must be {' or '.join(allowed)}, "
-                             f"as in ddql:PATH:{key}={allowed[1]}")
+            raise InputError(
+                f"--policy {spec!r}: {key} must be {' or '.join(allowed)}, as in ddql:PATH:{key}={allowed[1]}"
+            )
     if kind == "ddql-greedy":
         tau = None
-    return DDQLPolicy(path, tau=tau, name=spec, remove_taken=options.get("taken", "remove") == "remove",
-                      hover=options.get("hover", "yes") == "yes", mask=options.get("mask", "yes") == "yes",
-                      straggler_frontier=options.get("straggler", "network") == "frontier")
+    return DDQLPolicy(
+        path,
+        tau=tau,
+        name=spec,
+        remove_taken=options.get("taken", "remove") == "remove",
+        hover=options.get("hover", "yes") == "yes",
+        mask=options.get("mask", "yes") == "yes",
+        straggler_frontier=options.get("straggler", "network") == "frontier",
+    )

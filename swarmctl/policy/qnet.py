@@ -32,9 +32,12 @@ class QNetwork(nn.Module):
         self.window = window
         side = conv_output_side(window)
         self.features = nn.Sequential(
-            nn.Conv2d(3, channels, 3, padding=1), nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=1), nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=2), nn.ReLU(),
+            nn.Conv2d(3, channels, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, 4, stride=1),
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, 4, stride=2),
+            nn.ReLU(),
             nn.Flatten(),
         )
         self.head = nn.Sequential(nn.Linear(channels * side * side, hidden), nn.ReLU(), nn.Linear(hidden, n_actions))

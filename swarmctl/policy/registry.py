@@ -8,8 +8,10 @@ from swarmctl.policy.lookahead import LookAhead
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.planners import FrontierPolicy, LawnmowerPolicy, RandomPolicy
 
-POLICY_HELP = ("random, la:N (N = 1..6), lawnmower, frontier, oracle, "
-               "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..][:straggler=..], ddql-greedy:PATH")
+POLICY_HELP = (
+    "random, la:N (N = 1..6), lawnmower, frontier, oracle, "
+    "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..][:straggler=..], ddql-greedy:PATH"
+)
 
 
 def make_policy(spec: str):

@@ -61,8 +61,9 @@ class SearchEnv:
         self.last_observations: np.ndarray | None = None
 
     # ----- episode set-up -------------------------------------------------------------------
-    def reset(self, seed: int = 0, episodes: np.ndarray | range | None = None,
-              blocked: np.ndarray | None = None) -> np.ndarray | None:
+    def reset(
+        self, seed: int = 0, episodes: np.ndarray | range | None = None, blocked: np.ndarray | None = None
+    ) -> np.ndarray | None:
         """Start B episodes; episode indices default to 0..B-1. Returns observations (or None).
         `blocked` (W, H) bool: every episode on this fixed map (a real area's grid), targets and
         starts drawn on it (scenario.generate_scenario)."""
@@ -207,8 +208,9 @@ class SearchEnv:
 
     def observe(self, remove_taken: bool | None = None) -> np.ndarray:
         """(B, U, 3, F, F) float32 observations for every vehicle."""
-        return build_observations(self.value_channel(remove_taken), self.pos, self.known_pos, self.cfg.window,
-                                  self.cfg.rho)
+        return build_observations(
+            self.value_channel(remove_taken), self.pos, self.known_pos, self.cfg.window, self.cfg.rho
+        )
 
 
 def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:

@@ -88,7 +88,11 @@ class Report:
 
     def _same_report(self, other: object) -> bool:
         return type(self) is type(other) and (self.sender, self.step, self.cell, self.on_target) == (
-            other.sender, other.step, other.cell, other.on_target)
+            other.sender,
+            other.step,
+            other.cell,
+            other.on_target,
+        )
 
 
 @dataclass(eq=False)
@@ -124,8 +128,15 @@ class Delta(Report):
         if len(self) <= max_cells:
             return [self]
         return [
-            Delta(self.sender, self.step, self.cell, self.on_target, self.cells[i : i + max_cells],
-                  self.phi[i : i + max_cells], self.obstacle[i : i + max_cells])
+            Delta(
+                self.sender,
+                self.step,
+                self.cell,
+                self.on_target,
+                self.cells[i : i + max_cells],
+                self.phi[i : i + max_cells],
+                self.obstacle[i : i + max_cells],
+            )
             for i in range(0, len(self), max_cells)
         ]
 
@@ -133,9 +144,15 @@ class Delta(Report):
     def concat(parts: list[Delta]) -> Delta:
         """The inverse of `split` (parts in order)."""
         first = parts[0]
-        return Delta(first.sender, first.step, first.cell, first.on_target,
-                     np.concatenate([p.cells for p in parts]), np.concatenate([p.phi for p in parts]),
-                     np.concatenate([p.obstacle for p in parts]))
+        return Delta(
+            first.sender,
+            first.step,
+            first.cell,
+            first.on_target,
+            np.concatenate([p.cells for p in parts]),
+            np.concatenate([p.phi for p in parts]),
+            np.concatenate([p.obstacle for p in parts]),
+        )
 
 
 @dataclass(eq=False)
@@ -189,8 +206,9 @@ class Knowledge:
                 taken[p.cell] = True
         return taken
 
-    def value_channel(self, rho: float = 0.2, remove_taken: bool = False, sigma2: float = 1.0,
-                      cutoff: float = 0.01) -> np.ndarray:
+    def value_channel(
+        self, rho: float = 0.2, remove_taken: bool = False, sigma2: float = 1.0, cutoff: float = 0.01
+    ) -> np.ndarray:
         """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (as SearchEnv.value_channel);
         with remove_taken the targets others sit on are removed from phi_hat (world.taken)."""
         phi = self.phi
@@ -251,15 +269,29 @@ class Knowledge:
         x, y = np.nonzero(self._pending)
         self._pending[:] = False
         own = self.own_position or Position(0, None)
-        return Delta(self.vehicle_id, own.step, own.cell, own.on_target, np.stack([x, y], axis=1),
-                     self.phi_q[x, y], self.obstacle[x, y])
+        return Delta(
+            self.vehicle_id,
+            own.step,
+            own.cell,
+            own.on_target,
+            np.stack([x, y], axis=1),
+            self.phi_q[x, y],
+            self.obstacle[x, y],
+        )
 
     def cells_delta(self, mask: np.ndarray) -> Delta:
         """A delta carrying every explored cell selected by `mask` (W, H) (repair answers)."""
         x, y = np.nonzero(mask & self.explored)
         own = self.own_position or Position(0, None)
-        return Delta(self.vehicle_id, own.step, own.cell, own.on_target, np.stack([x, y], axis=1),
-                     self.phi_q[x, y], self.obstacle[x, y])
+        return Delta(
+            self.vehicle_id,
+            own.step,
+            own.cell,
+            own.on_target,
+            np.stack([x, y], axis=1),
+            self.phi_q[x, y],
+            self.obstacle[x, y],
+        )
 
     def add_targets(self, cells, step: int) -> None:
         for c in _cells_array(cells):
@@ -305,25 +337,36 @@ class Knowledge:
 
     def same_map(self, other: Knowledge) -> bool:
         """Same explored cells, phi and obstacles (positions and targets not compared)."""
-        return (np.array_equal(self.explored, other.explored) and np.array_equal(self.phi_q, other.phi_q)
-                and np.array_equal(self.obstacle, other.obstacle))
+        return (
+            np.array_equal(self.explored, other.explored)
+            and np.array_equal(self.phi_q, other.phi_q)
+            and np.array_equal(self.obstacle, other.obstacle)
+        )
 
     def __eq__(self, other: object) -> bool:
         """Equal views: same grid, map, positions and targets (whose view it is is not compared)."""
         if not isinstance(other, Knowledge):
             return NotImplemented
-        return ((self.width, self.height) == (other.width, other.height) and self.same_map(other)
-                and self.positions == other.positions and self.targets == other.targets)
+        return (
+            (self.width, self.height) == (other.width, other.height)
+            and self.same_map(other)
+            and self.positions == other.positions
+            and self.targets == other.targets
+        )
 
     __hash__ = None  # mutable
 
     def __repr__(self) -> str:
-        return (f"Knowledge(vehicle {self.vehicle_id}, {self.width} x {self.height}, "
-                f"{int(self.explored.sum())} explored, {len(self.positions)} positions, {len(self.targets)} targets)")
+        return (
+            f"Knowledge(vehicle {self.vehicle_id}, {self.width} x {self.height}, "
+            f"{int(self.explored.sum())} explored, {len(self.positions)} positions, {len(self.targets)} targets)"
+        )
 
     # ----- internals --------------------------------------------------------------------------------
     def _check_cells(self, cells: np.ndarray) -> None:
-        if cells.size and ((cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()):
+        if cells.size and (
+            (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
+        ):
             raise ValueError(f"cells outside the {self.width} x {self.height} grid")
 
     def _apply(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, obs: np.ndarray) -> None:

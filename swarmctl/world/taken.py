@@ -21,8 +21,9 @@ def value_bump(dist: np.ndarray, sigma2: float, cutoff: float) -> np.ndarray:
     return phi
 
 
-def remove_taken_targets(phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float,
-                         cutoff: float, tolerance: float = 1e-6) -> np.ndarray:
+def remove_taken_targets(
+    phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float, cutoff: float, tolerance: float = 1e-6
+) -> np.ndarray:
     """phi_hat (..., W, H) with the targets in `taken` removed.
 
     phi_hat: known phi (1 on unexplored cells); explored: bool, same shape; taken: bool, the target
@@ -34,7 +35,10 @@ def remove_taken_targets(phi_hat: np.ndarray, explored: np.ndarray, taken: np.nd
     sampling = [_FAR] * (phi_hat.ndim - 2) + [1.0, 1.0]
     remaining = explored & (phi_hat >= 1.0) & ~taken
     gone = value_bump(distance_transform_edt(~taken, sampling=sampling), sigma2, cutoff)
-    left = (value_bump(distance_transform_edt(~remaining, sampling=sampling), sigma2, cutoff)
-            if remaining.any() else np.zeros_like(gone))
+    left = (
+        value_bump(distance_transform_edt(~remaining, sampling=sampling), sigma2, cutoff)
+        if remaining.any()
+        else np.zeros_like(gone)
+    )
     explained = explored & (gone > 0) & (phi_hat <= gone + tolerance)
     return np.where(explained, left, phi_hat).astype(phi_hat.dtype)

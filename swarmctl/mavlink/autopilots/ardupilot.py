@@ -40,16 +40,31 @@ TELEMETRY = {
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
 
 
-def fence_items(mav: Any, target_system: int, target_component: int,
-                vertices: list[tuple[float, float]]) -> list[Any]:
+def fence_items(mav: Any, target_system: int, target_component: int, vertices: list[tuple[float, float]]) -> list[Any]:
     """The MISSION_ITEM_INT messages of one inclusion polygon (mission_type FENCE): one per vertex,
     MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, param1 = the vertex count, frame MAV_FRAME_GLOBAL,
     x/y = lat/lon in degE7."""
     n = float(len(vertices))
-    return [mav.mission_item_int_encode(target_system, target_component, seq, MAV.MAV_FRAME_GLOBAL,
-                                        MAV.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, 0, 0, n, 0.0, 0.0,
-                                        0.0, to_deg_e7(lat), to_deg_e7(lon), 0.0, MAV.MAV_MISSION_TYPE_FENCE)
-            for seq, (lat, lon) in enumerate(vertices)]
+    return [
+        mav.mission_item_int_encode(
+            target_system,
+            target_component,
+            seq,
+            MAV.MAV_FRAME_GLOBAL,
+            MAV.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+            0,
+            0,
+            n,
+            0.0,
+            0.0,
+            0.0,
+            to_deg_e7(lat),
+            to_deg_e7(lon),
+            0.0,
+            MAV.MAV_MISSION_TYPE_FENCE,
+        )
+        for seq, (lat, lon) in enumerate(vertices)
+    ]
 
 
 class ArduPilotVehicle(Vehicle):
@@ -57,9 +72,18 @@ class ArduPilotVehicle(Vehicle):
 
     autopilot = "ardupilot"
 
-    def __init__(self, link: MavlinkLink, sysid: int, *, name: str | None = None,
-                 telemetry_rate_hz: float = 5.0, command_timeout: float = 1.0, retries: int = 3,
-                 mission_timeout: float = 1.5, owns_link: bool = False):
+    def __init__(
+        self,
+        link: MavlinkLink,
+        sysid: int,
+        *,
+        name: str | None = None,
+        telemetry_rate_hz: float = 5.0,
+        command_timeout: float = 1.0,
+        retries: int = 3,
+        mission_timeout: float = 1.5,
+        owns_link: bool = False,
+    ):
         self.link, self.sysid = link, sysid
         self.name = name or f"vehicle {sysid}"
         self.telemetry_rate_hz = telemetry_rate_hz
@@ -74,8 +98,9 @@ class ArduPilotVehicle(Vehicle):
         self.unsupported: set[int] = set()  # telemetry messages the vehicle said it cannot stream
 
     @classmethod
-    async def open(cls, connection: str, sysid: int, *, signing_key: bytes | None = None,
-                   **kw: Any) -> "ArduPilotVehicle":
+    async def open(
+        cls, connection: str, sysid: int, *, signing_key: bytes | None = None, **kw: Any
+    ) -> ArduPilotVehicle:
         """A vehicle on its own link (use MavlinkLink + the constructor to share a link)."""
         link = await MavlinkLink(connection, signing_key=signing_key).open()
         return cls(link, sysid, owns_link=True, **kw)
@@ -102,8 +127,13 @@ class ArduPilotVehicle(Vehicle):
                     continue
                 try:
                     await self.link.set_message_interval(
-                        self.sysid, msg_id, rate or self.telemetry_rate_hz, vehicle=self.name,
-                        timeout=self.command_timeout, retries=self.retries)
+                        self.sysid,
+                        msg_id,
+                        rate or self.telemetry_rate_hz,
+                        vehicle=self.name,
+                        timeout=self.command_timeout,
+                        retries=self.retries,
+                    )
                 except CommandRejected as exc:
                     if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
                         self.unsupported.add(msg_id)
@@ -148,8 +178,7 @@ class ArduPilotVehicle(Vehicle):
         if name not in COPTER_MODES:
             raise ValueError(f"unknown ArduCopter mode {mode!r}; known: {', '.join(COPTER_MODES)}")
         number = COPTER_MODES[name]
-        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED),
-                            float(number))
+        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(number))
         await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
 
     async def arm(self, timeout: float = 30.0) -> None:
@@ -190,8 +219,11 @@ class ArduPilotVehicle(Vehicle):
         pos = self.position
         assert pos is not None
         self.target = Target(pos.lat, pos.lon, rel_alt)
-        await self._poll(lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt,
-                         left(), f"take-off altitude {rel_alt:g} m")
+        await self._poll(
+            lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt,
+            left(),
+            f"take-off altitude {rel_alt:g} m",
+        )
 
     async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
         self.target = Target(lat, lon, rel_alt)
@@ -201,16 +233,36 @@ class ArduPilotVehicle(Vehicle):
         t = self.target
         assert t is not None
         peer = self.link.peer(self.sysid)
-        self.link.send(self.link.mav.set_position_target_global_int_encode(
-            int(time.monotonic() * 1000) & 0xFFFFFFFF, self.sysid, peer.compid,
-            MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, TYPE_MASK_POSITION_ONLY,
-            to_deg_e7(t.lat), to_deg_e7(t.lon), float(t.rel_alt), 0, 0, 0, 0, 0, 0, 0, 0))
+        self.link.send(
+            self.link.mav.set_position_target_global_int_encode(
+                int(time.monotonic() * 1000) & 0xFFFFFFFF,
+                self.sysid,
+                peer.compid,
+                MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                TYPE_MASK_POSITION_ONLY,
+                to_deg_e7(t.lat),
+                to_deg_e7(t.lon),
+                float(t.rel_alt),
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
+        )
         self._target_sent = time.monotonic()
 
     async def _on_wait(self) -> None:
         # A lost SET_POSITION_TARGET has no ack: resend it once a second while waiting in GUIDED.
-        if (self.target is not None and self.mode == "GUIDED" and self._target_sent
-                and time.monotonic() - self._target_sent > 1.0):
+        if (
+            self.target is not None
+            and self.mode == "GUIDED"
+            and self._target_sent
+            and time.monotonic() - self._target_sent > 1.0
+        ):
             self._send_target()
 
     async def land(self) -> None:
@@ -244,11 +296,14 @@ class ArduPilotVehicle(Vehicle):
         the polygon (the vehicle would breach it inside the search area). swarmctl never changes these
         parameters itself."""
         read = lambda name: self.link.read_param(  # noqa: E731
-            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name)
+            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name
+        )
         fence_type = int(await read("FENCE_TYPE"))
         if not fence_type & 4:
-            raise MavlinkError(f"{self.name}: FENCE_TYPE is {fence_type}, without the polygon (4): the vehicle "
-                               f"would not enforce the uploaded fence; set FENCE_TYPE to {fence_type | 4}")
+            raise MavlinkError(
+                f"{self.name}: FENCE_TYPE is {fence_type}, without the polygon (4): the vehicle "
+                f"would not enforce the uploaded fence; set FENCE_TYPE to {fence_type | 4}"
+            )
         home = self.home
         if fence_type & 2 and home is not None:
             radius = await read("FENCE_RADIUS")
@@ -257,7 +312,8 @@ class ArduPilotVehicle(Vehicle):
                 raise MavlinkError(
                     f"{self.name}: FENCE_RADIUS is {radius:g} m but the fence reaches {reach:.0f} m from home, so "
                     f"the circle fence would cut the search area; set FENCE_RADIUS to at least "
-                    f"{math.ceil(reach / 10) * 10} or take the circle (2) out of FENCE_TYPE (now {fence_type})")
+                    f"{math.ceil(reach / 10) * 10} or take the circle (2) out of FENCE_TYPE (now {fence_type})"
+                )
 
     async def _upload(self, items: list[Any], mission_type: int, what: str) -> None:
         """The mission protocol's upload: MISSION_COUNT, then each item the vehicle asks for with
@@ -272,8 +328,12 @@ class ArduPilotVehicle(Vehicle):
         me = self.link.system_id
 
         def listen(m: Any) -> None:
-            if (m.get_type() in _UPLOAD_ANSWERS and m.get_srcSystem() == self.sysid
-                    and m.mission_type == mission_type and m.target_system in (0, me)):
+            if (
+                m.get_type() in _UPLOAD_ANSWERS
+                and m.get_srcSystem() == self.sysid
+                and m.mission_type == mission_type
+                and m.target_system in (0, me)
+            ):
                 answers.put_nowait(m)
 
         started = time.monotonic()
@@ -284,9 +344,10 @@ class ArduPilotVehicle(Vehicle):
             while True:
                 try:
                     m = await asyncio.wait_for(answers.get(), self.mission_timeout)
-                except asyncio.TimeoutError:
-                    waiting = (f"a request for item {sent + 1}" if sent < len(items) - 1
-                               else "MISSION_ACK after the last item")
+                except TimeoutError:
+                    waiting = (
+                        f"a request for item {sent + 1}" if sent < len(items) - 1 else "MISSION_ACK after the last item"
+                    )
                     if attempts <= self.retries:
                         attempts += 1
                         log.info("%s: %s: no answer, sending again (waiting for %s)", self.name, what, waiting)
@@ -296,12 +357,12 @@ class ArduPilotVehicle(Vehicle):
                         resend, sent, attempts, restarted = count, -1, 1, True
                         self.link.send(count)
                         continue
-                    raise CommandTimeout(f"{what} (waiting for {waiting})", self.name, attempts,
-                                         self.mission_timeout) from None
+                    raise CommandTimeout(
+                        f"{what} (waiting for {waiting})", self.name, attempts, self.mission_timeout
+                    ) from None
                 if m.get_type() != "MISSION_ACK":
                     if not 0 <= m.seq < len(items):
-                        raise MavlinkError(f"{self.name}: {what}: the vehicle asked for item {m.seq} "
-                                           f"of {len(items)}")
+                        raise MavlinkError(f"{self.name}: {what}: the vehicle asked for item {m.seq} of {len(items)}")
                     resend, sent, attempts = items[m.seq], max(sent, m.seq), 1
                     self.link.send(resend)
                 elif m.type == MAV.MAV_MISSION_ACCEPTED and sent == len(items) - 1:
@@ -313,9 +374,10 @@ class ArduPilotVehicle(Vehicle):
                         result = f"ACCEPTED after {sent + 1} of {len(items)} items"
                     if not peer.texts_since(started):  # a STATUSTEXT saying why may trail the ack
                         try:
-                            await self.link.wait_message(lambda t: t.get_type() == "STATUSTEXT"
-                                                         and t.get_srcSystem() == self.sysid, 0.2)
-                        except asyncio.TimeoutError:
+                            await self.link.wait_message(
+                                lambda t: t.get_type() == "STATUSTEXT" and t.get_srcSystem() == self.sysid, 0.2
+                            )
+                        except TimeoutError:
                             pass
                     raise CommandRejected(what, self.name, result, peer.texts_since(started))
         finally:

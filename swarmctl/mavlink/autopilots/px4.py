@@ -40,8 +40,12 @@ def _route_mavsdk_log() -> None:
     from mavsdk import LogLevel, log_subscribe
 
     mlog = logging.getLogger("mavsdk")
-    levels = {LogLevel.DEBUG: logging.DEBUG, LogLevel.INFO: logging.INFO,
-              LogLevel.WARN: logging.WARNING, LogLevel.ERROR: logging.ERROR}
+    levels = {
+        LogLevel.DEBUG: logging.DEBUG,
+        LogLevel.INFO: logging.INFO,
+        LogLevel.WARN: logging.WARNING,
+        LogLevel.ERROR: logging.ERROR,
+    }
 
     def forward(level: Any, message: str, file: str | None, line: int) -> bool:
         mlog.log(levels.get(level, logging.INFO), "%s", message)
@@ -56,8 +60,15 @@ class PX4Vehicle(Vehicle):
 
     autopilot = "px4"
 
-    def __init__(self, connection: str, *, sysid: int | None = None, name: str | None = None,
-                 telemetry_rate_hz: float = 5.0, arm_retry_period: float = 0.5):
+    def __init__(
+        self,
+        connection: str,
+        *,
+        sysid: int | None = None,
+        name: str | None = None,
+        telemetry_rate_hz: float = 5.0,
+        arm_retry_period: float = 0.5,
+    ):
         self.endpoint = parse_connection(connection)
         self.sysid = sysid
         self.name = name or (f"vehicle {sysid}" if sysid else f"PX4 at {self.endpoint}")
@@ -99,8 +110,7 @@ class PX4Vehicle(Vehicle):
             # first_autopilot, not get_systems: with mavsdk 4.1 a System taken from get_systems()
             # was seen to drop parameter writes (set_takeoff_altitude) silently.
             system = await self._sdk.first_autopilot(timeout_s=min(left, 1.0))
-            if system is not None and self.sysid is not None \
-                    and await system.get_system_id() != self.sysid:
+            if system is not None and self.sysid is not None and await system.get_system_id() != self.sysid:
                 system = None
                 for s in await self._sdk.get_systems():
                     if await s.get_system_id() == self.sysid and await s.has_autopilot():
@@ -118,14 +128,16 @@ class PX4Vehicle(Vehicle):
         self.action, self.telemetry = ActionAsync(system), TelemetryAsync(system)
         self._connected = True
         follow = {
-            "subscribe_position": self._on_position, "subscribe_home": self._on_home,
-            "subscribe_armed": self._on_armed, "subscribe_flight_mode": self._on_mode,
+            "subscribe_position": self._on_position,
+            "subscribe_home": self._on_home,
+            "subscribe_armed": self._on_armed,
+            "subscribe_flight_mode": self._on_mode,
             "subscribe_battery": self._on_battery,
         }
-        self._tasks = [asyncio.create_task(self._follow(getattr(self.telemetry, sub), cb))
-                       for sub, cb in follow.items()]
-        self._tasks.append(asyncio.create_task(self._follow(system.is_connected_state,
-                                                            self._on_connected)))
+        self._tasks = [
+            asyncio.create_task(self._follow(getattr(self.telemetry, sub), cb)) for sub, cb in follow.items()
+        ]
+        self._tasks.append(asyncio.create_task(self._follow(system.is_connected_state, self._on_connected)))
         await self._call("set_rate_position", self.telemetry.set_rate_position, self.telemetry_rate_hz)
         for setter in ("set_rate_home", "set_rate_battery"):
             try:
@@ -140,8 +152,7 @@ class PX4Vehicle(Vehicle):
 
     def _on_position(self, p: Any) -> None:
         if math.isfinite(p.latitude_deg) and (p.latitude_deg or p.longitude_deg):
-            self._position = Position(p.latitude_deg, p.longitude_deg, p.relative_altitude_m,
-                                      p.absolute_altitude_m)
+            self._position = Position(p.latitude_deg, p.longitude_deg, p.relative_altitude_m, p.absolute_altitude_m)
 
     def _on_home(self, h: Any) -> None:
         if math.isfinite(h.latitude_deg) and (h.latitude_deg or h.longitude_deg):
@@ -174,8 +185,7 @@ class PX4Vehicle(Vehicle):
 
     async def wait_ready(self, timeout: float = 60.0) -> None:
         # Position and home known; PX4's health flags are not waited for (arming is retried).
-        await self._poll(lambda: self._position is not None and self._home is not None, timeout,
-                         "position and home")
+        await self._poll(lambda: self._position is not None and self._home is not None, timeout, "position and home")
 
     async def close(self) -> None:
         await cancel_tasks(self._tasks)
@@ -219,16 +229,18 @@ class PX4Vehicle(Vehicle):
         pos = self._position
         assert pos is not None
         self.target = Target(pos.lat, pos.lon, rel_alt)
-        await self._poll(lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt,
-                         left(), f"take-off altitude {rel_alt:g} m")
+        await self._poll(
+            lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt,
+            left(),
+            f"take-off altitude {rel_alt:g} m",
+        )
 
     async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
         home = self._home
         if home is None:
             raise MavlinkError(f"{self.name}: no home position yet, cannot convert to AMSL")
         self.target = Target(lat, lon, rel_alt)
-        await self._call("goto_location", self.action.goto_location, lat, lon,
-                         home.alt_amsl + rel_alt, float("nan"))
+        await self._call("goto_location", self.action.goto_location, lat, lon, home.alt_amsl + rel_alt, float("nan"))
 
     async def land(self) -> None:
         await self._call("land", self.action.land)

@@ -28,14 +28,25 @@ import random
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.mavlink.codec import (COPTER_MODE_NAMES, COPTER_MODES, PX4_MODES, distance_m,
-                                    from_deg_e7, ne_m, offset_m, px4_decode, px4_encode, px4_mode_name,
-                                    to_deg_e7)
+from swarmctl.mavlink.codec import (
+    COPTER_MODE_NAMES,
+    COPTER_MODES,
+    PX4_MODES,
+    distance_m,
+    from_deg_e7,
+    ne_m,
+    offset_m,
+    px4_decode,
+    px4_encode,
+    px4_mode_name,
+    to_deg_e7,
+)
 from swarmctl.mavlink.mock.fence import FENCE, MockFence
 from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
 
@@ -43,28 +54,48 @@ MAV = mavlink2
 log = logging.getLogger(__name__)
 
 # SYS_STATUS sensor bits the mock reports (gyro, accel, mag, baro, GPS, motors, battery, pre-arm).
-_SENSORS = (MAV.MAV_SYS_STATUS_SENSOR_3D_GYRO | MAV.MAV_SYS_STATUS_SENSOR_3D_ACCEL
-            | MAV.MAV_SYS_STATUS_SENSOR_3D_MAG | MAV.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
-            | MAV.MAV_SYS_STATUS_SENSOR_GPS | MAV.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
-            | MAV.MAV_SYS_STATUS_SENSOR_BATTERY | MAV.MAV_SYS_STATUS_PREARM_CHECK)
+_SENSORS = (
+    MAV.MAV_SYS_STATUS_SENSOR_3D_GYRO
+    | MAV.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+    | MAV.MAV_SYS_STATUS_SENSOR_3D_MAG
+    | MAV.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+    | MAV.MAV_SYS_STATUS_SENSOR_GPS
+    | MAV.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+    | MAV.MAV_SYS_STATUS_SENSOR_BATTERY
+    | MAV.MAV_SYS_STATUS_PREARM_CHECK
+)
 
 _PX4_DEFAULT_STREAMS = {  # PX4 streams telemetry unasked (ArduPilot sends only heartbeats)
-    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.2, MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
-    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0, MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.2,
+    MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
+    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
 }
-_STREAMABLE = {MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, MAV.MAVLINK_MSG_ID_HOME_POSITION,
-               MAV.MAVLINK_MSG_ID_SYS_STATUS, MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
-               MAV.MAVLINK_MSG_ID_BATTERY_STATUS,
-               MAV.MAVLINK_MSG_ID_HEARTBEAT, MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
+_STREAMABLE = {
+    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    MAV.MAVLINK_MSG_ID_HOME_POSITION,
+    MAV.MAVLINK_MSG_ID_SYS_STATUS,
+    MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE,
+    MAV.MAVLINK_MSG_ID_BATTERY_STATUS,
+    MAV.MAVLINK_MSG_ID_HEARTBEAT,
+    MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+}
 
 _PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station touches
-    "MIS_TAKEOFF_ALT": 2.5, "MPC_XY_CRUISE": 5.0, "RTL_RETURN_ALT": 30.0, "NAV_DLL_ACT": 2.0,
-    "COM_OF_LOSS_T": 1.0, "SYS_AUTOSTART": 4001.0,
+    "MIS_TAKEOFF_ALT": 2.5,
+    "MPC_XY_CRUISE": 5.0,
+    "RTL_RETURN_ALT": 30.0,
+    "NAV_DLL_ACT": 2.0,
+    "COM_OF_LOSS_T": 1.0,
+    "SYS_AUTOSTART": 4001.0,
     "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
 }
 _ARDUPILOT_PARAMS: dict[str, float] = {  # ArduCopter's fence parameters, at their defaults
-    "FENCE_ENABLE": 0.0, "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
-    "FENCE_RADIUS": 300.0, "FENCE_ACTION": 1.0, "FENCE_MARGIN": 2.0,
+    "FENCE_ENABLE": 0.0,
+    "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
+    "FENCE_RADIUS": 300.0,
+    "FENCE_ACTION": 1.0,
+    "FENCE_MARGIN": 2.0,
 }
 _COPTER_ARMABLE = {"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
 
@@ -97,13 +128,26 @@ class MockState:
 
 
 class MockAutopilot:
-    def __init__(self, sysid: int = 1, connect: str = "udpout:127.0.0.1:14550", *,
-                 home: tuple[float, float, float] = (-35.363262, 149.165237, 584.0),
-                 autopilot: str = "ardupilot", speed: float = 5.0, climb_rate: float = 2.5,
-                 descent_rate: float = 1.5, speedup: float = 1.0, signing_key: bytes | None = None,
-                 ready_after: float = 2.0, gcs_failsafe_timeout: float | None = 5.0,
-                 rtl_alt: float = 15.0, battery_drain: float = 0.08, compid: int = 1,
-                 seed: int | None = None, tick: float = 0.02):
+    def __init__(
+        self,
+        sysid: int = 1,
+        connect: str = "udpout:127.0.0.1:14550",
+        *,
+        home: tuple[float, float, float] = (-35.363262, 149.165237, 584.0),
+        autopilot: str = "ardupilot",
+        speed: float = 5.0,
+        climb_rate: float = 2.5,
+        descent_rate: float = 1.5,
+        speedup: float = 1.0,
+        signing_key: bytes | None = None,
+        ready_after: float = 2.0,
+        gcs_failsafe_timeout: float | None = 5.0,
+        rtl_alt: float = 15.0,
+        battery_drain: float = 0.08,
+        compid: int = 1,
+        seed: int | None = None,
+        tick: float = 0.02,
+    ):
         if autopilot not in ("ardupilot", "px4"):
             raise ValueError(f"autopilot must be 'ardupilot' or 'px4', not {autopilot!r}")
         if not 1 <= sysid <= 255:
@@ -162,8 +206,9 @@ class MockAutopilot:
         self.lat, self.lon, self.rel_alt = lat, lon, 0.0
         self.vel = (0.0, 0.0, 0.0)  # north, east, down m/s
         self.armed = False
-        self.custom_mode = (COPTER_MODES["STABILIZE"] if self.personality == "ardupilot"
-                            else px4_encode(*PX4_MODES["POSCTL"]))
+        self.custom_mode = (
+            COPTER_MODES["STABILIZE"] if self.personality == "ardupilot" else px4_encode(*PX4_MODES["POSCTL"])
+        )
         self.target: tuple[float, float, float] | None = None  # lat, lon, rel_alt
         self.battery = getattr(self, "battery", 100.0)
         self.ready = False
@@ -181,7 +226,7 @@ class MockAutopilot:
         self.next_due: dict[int, float] = {}
         self.next_heartbeat = now
 
-    def start(self) -> "MockAutopilot":
+    def start(self) -> MockAutopilot:
         self._transport = open_transport(self.connect)
         self.mav = MAV.MAVLink(self._outbox, srcSystem=self.sysid, srcComponent=self.compid)
         self.mav.robust_parsing = True
@@ -191,8 +236,7 @@ class MockAutopilot:
             s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
             s.allow_unsigned_callback = lambda _mav, msg_id: msg_id == MAV.MAVLINK_MSG_ID_RADIO_STATUS
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}", daemon=True)
         self._thread.start()
         return self
 
@@ -205,7 +249,7 @@ class MockAutopilot:
             self._transport.close()
             self._transport = None
 
-    def __enter__(self) -> "MockAutopilot":
+    def __enter__(self) -> MockAutopilot:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -273,12 +317,21 @@ class MockAutopilot:
     def state(self) -> MockState:
         with self._lock:
             f = self.fence
-            return MockState(self.lat, self.lon, self.rel_alt, self.armed, self.mode_name,
-                             self.battery, self.ready, self.gcs_failsafe,
-                             fence=tuple(tuple(p) for p in f.polygons), fence_enabled=f.active,
-                             fence_refused=f.refused)
+            return MockState(
+                self.lat,
+                self.lon,
+                self.rel_alt,
+                self.armed,
+                self.mode_name,
+                self.battery,
+                self.ready,
+                self.gcs_failsafe,
+                fence=tuple(tuple(p) for p in f.polygons),
+                fence_enabled=f.active,
+                fence_refused=f.refused,
+            )
 
-    def wait_for(self, condition: Callable[["MockAutopilot"], bool], timeout: float) -> bool:
+    def wait_for(self, condition: Callable[[MockAutopilot], bool], timeout: float) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if condition(self):
@@ -371,8 +424,9 @@ class MockAutopilot:
 
     def _ack(self, msg: Any, command: int, result: int) -> None:
         self.commands.append((command, result))
-        self.send_message(self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(),
-                                                      msg.get_srcComponent()))
+        self.send_message(
+            self.mav.command_ack_encode(command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent())
+        )
 
     # --- periodic output --------------------------------------------------------------------------------
 
@@ -393,8 +447,11 @@ class MockAutopilot:
         base = MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         if self.personality == "ardupilot":
             # as ArduCopter SITL sends them: 89 disarmed, 217 armed (log reference)
-            base |= (MAV.MAV_MODE_FLAG_STABILIZE_ENABLED | MAV.MAV_MODE_FLAG_GUIDED_ENABLED
-                     | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED)
+            base |= (
+                MAV.MAV_MODE_FLAG_STABILIZE_ENABLED
+                | MAV.MAV_MODE_FLAG_GUIDED_ENABLED
+                | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+            )
             autopilot = MAV.MAV_AUTOPILOT_ARDUPILOTMEGA
         else:
             main, _sub = px4_decode(self.custom_mode)
@@ -406,10 +463,8 @@ class MockAutopilot:
             autopilot = MAV.MAV_AUTOPILOT_PX4
         if self.armed:
             base |= MAV.MAV_MODE_FLAG_SAFETY_ARMED
-        status = (MAV.MAV_STATE_ACTIVE if self.armed
-                  else MAV.MAV_STATE_STANDBY if self.ready else MAV.MAV_STATE_BOOT)
-        return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode,
-                                         status)
+        status = MAV.MAV_STATE_ACTIVE if self.armed else MAV.MAV_STATE_STANDBY if self.ready else MAV.MAV_STATE_BOOT
+        return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode, status)
 
     def _reported_latlon(self) -> tuple[float, float]:
         if self._glitch is not None:
@@ -435,40 +490,76 @@ class MockAutopilot:
             vn, ve, vd = self.vel
             hdg = int(math.degrees(math.atan2(ve, vn)) % 360 * 100) if (vn or ve) else 65535
             return self.mav.global_position_int_encode(
-                self._time_boot_ms(), lat_i, lon_i, int(round((home_alt + self.rel_alt) * 1000)),
-                int(round(self.rel_alt * 1000)), int(vn * 100), int(ve * 100), int(vd * 100), hdg)
+                self._time_boot_ms(),
+                lat_i,
+                lon_i,
+                int(round((home_alt + self.rel_alt) * 1000)),
+                int(round(self.rel_alt * 1000)),
+                int(vn * 100),
+                int(ve * 100),
+                int(vd * 100),
+                hdg,
+            )
         if msg_id == MAV.MAVLINK_MSG_ID_HOME_POSITION:
             if not self.home_set:
                 return None
             return self.mav.home_position_encode(
-                to_deg_e7(home_lat), to_deg_e7(home_lon), int(round(home_alt * 1000)), 0, 0, 0,
-                [1.0, 0.0, 0.0, 0.0], 0, 0, 0, int((time.monotonic() - self.boot_wall) * 1e6))
+                to_deg_e7(home_lat),
+                to_deg_e7(home_lon),
+                int(round(home_alt * 1000)),
+                0,
+                0,
+                0,
+                [1.0, 0.0, 0.0, 0.0],
+                0,
+                0,
+                0,
+                int((time.monotonic() - self.boot_wall) * 1e6),
+            )
         if msg_id == MAV.MAVLINK_MSG_ID_SYS_STATUS:
-            health = _SENSORS if self.ready else _SENSORS & ~(MAV.MAV_SYS_STATUS_PREARM_CHECK
-                                                              | MAV.MAV_SYS_STATUS_SENSOR_GPS)
+            health = (
+                _SENSORS
+                if self.ready
+                else _SENSORS & ~(MAV.MAV_SYS_STATUS_PREARM_CHECK | MAV.MAV_SYS_STATUS_SENSOR_GPS)
+            )
             volts = 4 * (3.5 + 0.7 * self.battery / 100.0)
             current = 1500 if self.rel_alt > 0.1 else (100 if self.armed else 50)
-            return self.mav.sys_status_encode(_SENSORS, _SENSORS, health, 200, int(volts * 1000),
-                                              current, int(self.battery), 0, 0, 0, 0, 0, 0)
+            return self.mav.sys_status_encode(
+                _SENSORS, _SENSORS, health, 200, int(volts * 1000), current, int(self.battery), 0, 0, 0, 0, 0, 0
+            )
         if msg_id == MAV.MAVLINK_MSG_ID_BATTERY_STATUS:
             cell_mv = int(1000 * (3.5 + 0.7 * self.battery / 100.0))
             return self.mav.battery_status_encode(
-                0, MAV.MAV_BATTERY_FUNCTION_ALL, MAV.MAV_BATTERY_TYPE_LIPO, 32767,
-                [cell_mv] * 4 + [65535] * 6, 1500 if self.rel_alt > 0.1 else 50, -1, -1,
-                int(self.battery))
+                0,
+                MAV.MAV_BATTERY_FUNCTION_ALL,
+                MAV.MAV_BATTERY_TYPE_LIPO,
+                32767,
+                [cell_mv] * 4 + [65535] * 6,
+                1500 if self.rel_alt > 0.1 else 50,
+                -1,
+                -1,
+                int(self.battery),
+            )
         if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return self.mav.extended_sys_state_encode(MAV.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
         if msg_id == MAV.MAVLINK_MSG_ID_HEARTBEAT:
             return self._heartbeat()
         if msg_id == MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            caps = (MAV.MAV_PROTOCOL_CAPABILITY_MAVLINK2 | MAV.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                    | MAV.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                    | MAV.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                    | (MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE if self.personality == "px4"
-                       else MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST))
+            caps = (
+                MAV.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+                | MAV.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+                | MAV.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | MAV.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+                | (
+                    MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+                    if self.personality == "px4"
+                    else MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
+                )
+            )
             version = (1 << 24) | (15 << 16) if self.personality == "px4" else (4 << 24) | (5 << 16)
-            return self.mav.autopilot_version_encode(caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8,
-                                                     0, 0, 0x5357_0000 + self.sysid)
+            return self.mav.autopilot_version_encode(
+                caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5357_0000 + self.sysid
+            )
         return None
 
     def _landed_state(self) -> int:
@@ -476,8 +567,7 @@ class MockAutopilot:
             return MAV.MAV_LANDED_STATE_ON_GROUND
         if self.mode_name == "LAND" and self.vel[2] > 0:
             return MAV.MAV_LANDED_STATE_LANDING
-        if self.target is not None and self.rel_alt < self.target[2] - 0.5 and self.vel[2] < 0 \
-                and self.rel_alt < 2.0:
+        if self.target is not None and self.rel_alt < self.target[2] - 0.5 and self.vel[2] < 0 and self.rel_alt < 2.0:
             return MAV.MAV_LANDED_STATE_TAKEOFF
         return MAV.MAV_LANDED_STATE_IN_AIR if self.rel_alt > 0.05 else MAV.MAV_LANDED_STATE_ON_GROUND
 
@@ -493,8 +583,9 @@ class MockAutopilot:
                 self.statustext("ArduPilot Ready")
         self._failsafe(now)
         if self.armed:
-            self.battery = max(0.0, self.battery - dt * (self.battery_drain if self.rel_alt > 0.1
-                                                         else self.battery_drain / 10))
+            self.battery = max(
+                0.0, self.battery - dt * (self.battery_drain if self.rel_alt > 0.1 else self.battery_drain / 10)
+            )
         if not self.armed:
             self.vel = (0.0, 0.0, 0.0)
             return
@@ -558,8 +649,7 @@ class MockAutopilot:
         self.rel_alt = alt if abs(dz_step) >= abs(dz) else self.rel_alt + dz_step
         self.rel_alt = max(0.0, self.rel_alt)
         if dt > 0:
-            self.vel = ((n * step / dist / dt) if dist else 0.0,
-                        (e * step / dist / dt) if dist else 0.0, -dz_step / dt)
+            self.vel = ((n * step / dist / dt) if dist else 0.0, (e * step / dist / dt) if dist else 0.0, -dz_step / dt)
 
     def _failsafe(self, now: float) -> None:
         """GCS failsafe: no controller heartbeat for gcs_failsafe_timeout s -> RTL (or disarm on ground)."""
@@ -579,9 +669,12 @@ class MockAutopilot:
             self.statustext("GCS Failsafe: disarming", MAV.MAV_SEVERITY_CRITICAL)
         elif self.mode_name not in ("RTL", "LAND"):
             self._set_mode_name("RTL")
-            self.statustext("GCS Failsafe" if self.personality == "ardupilot"
-                            else "Failsafe: no connection to ground station, returning",
-                            MAV.MAV_SEVERITY_CRITICAL)
+            self.statustext(
+                "GCS Failsafe"
+                if self.personality == "ardupilot"
+                else "Failsafe: no connection to ground station, returning",
+                MAV.MAV_SEVERITY_CRITICAL,
+            )
 
     # --- receiving ----------------------------------------------------------------------------------------
 
@@ -616,16 +709,25 @@ class MockAutopilot:
         elif mtype.startswith("MISSION_") and getattr(msg, "mission_type", None) == FENCE:
             self.fence.handle(msg)
         elif mtype in ("MISSION_REQUEST_LIST",):  # no mission and no rally points are kept
-            self.send_message(self.mav.mission_count_encode(msg.get_srcSystem(), msg.get_srcComponent(),
-                                                            0, getattr(msg, "mission_type", 0)))
+            self.send_message(
+                self.mav.mission_count_encode(
+                    msg.get_srcSystem(), msg.get_srcComponent(), 0, getattr(msg, "mission_type", 0)
+                )
+            )
         elif mtype == "MISSION_CLEAR_ALL":
-            self.send_message(self.mav.mission_ack_encode(msg.get_srcSystem(), msg.get_srcComponent(),
-                                                          MAV.MAV_MISSION_ACCEPTED,
-                                                          getattr(msg, "mission_type", 0)))
+            self.send_message(
+                self.mav.mission_ack_encode(
+                    msg.get_srcSystem(),
+                    msg.get_srcComponent(),
+                    MAV.MAV_MISSION_ACCEPTED,
+                    getattr(msg, "mission_type", 0),
+                )
+            )
         elif mtype == "PING":
             if msg.target_system == 0:
-                self.send_message(self.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(),
-                                                       msg.get_srcComponent()))
+                self.send_message(
+                    self.mav.ping_encode(msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent())
+                )
         elif mtype == "TIMESYNC":
             if msg.tc1 == 0:
                 self.send_message(self.mav.timesync_encode(time.monotonic_ns(), msg.ts1))
@@ -655,8 +757,10 @@ class MockAutopilot:
             p += [msg.param5, msg.param6, msg.param7]
             frame = MAV.MAV_FRAME_GLOBAL
             if command == MAV.MAV_CMD_DO_REPOSITION:
-                p[4], p[5] = to_deg_e7(p[4]) if math.isfinite(p[4]) else 0, \
-                    to_deg_e7(p[5]) if math.isfinite(p[5]) else 0
+                p[4], p[5] = (
+                    to_deg_e7(p[4]) if math.isfinite(p[4]) else 0,
+                    to_deg_e7(p[5]) if math.isfinite(p[5]) else 0,
+                )
         result = self._run_command(msg, command, p, frame)
         if result is not None:
             self._ack(msg, command, result)
@@ -679,11 +783,16 @@ class MockAutopilot:
                 self.intervals[msg_id] = max(interval_us / 1e6, 0.005)
             self.next_due[msg_id] = 0.0
             return R.MAV_RESULT_ACCEPTED
-        if command in (R.MAV_CMD_REQUEST_MESSAGE, R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
-                       R.MAV_CMD_GET_HOME_POSITION):
-            msg_id = {R.MAV_CMD_REQUEST_MESSAGE: int(p[0]),
-                      R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: R.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
-                      R.MAV_CMD_GET_HOME_POSITION: R.MAVLINK_MSG_ID_HOME_POSITION}[command]
+        if command in (
+            R.MAV_CMD_REQUEST_MESSAGE,
+            R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES,
+            R.MAV_CMD_GET_HOME_POSITION,
+        ):
+            msg_id = {
+                R.MAV_CMD_REQUEST_MESSAGE: int(p[0]),
+                R.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: R.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                R.MAV_CMD_GET_HOME_POSITION: R.MAVLINK_MSG_ID_HOME_POSITION,
+            }[command]
             if msg_id not in _STREAMABLE:
                 return R.MAV_RESULT_UNSUPPORTED if self.personality == "px4" else R.MAV_RESULT_FAILED
             reply = self._build(msg_id)
@@ -735,12 +844,10 @@ class MockAutopilot:
                 return MAV.MAV_RESULT_UNSUPPORTED
             if name == "OFFBOARD" and time.monotonic() - self.last_setpoint > 0.5:
                 # PX4 needs a setpoint stream (> 2 Hz) before it accepts OFFBOARD
-                self.statustext("Switching to Offboard is currently not available",
-                                MAV.MAV_SEVERITY_CRITICAL)
+                self.statustext("Switching to Offboard is currently not available", MAV.MAV_SEVERITY_CRITICAL)
                 return MAV.MAV_RESULT_TEMPORARILY_REJECTED
             if name in ("HOLD", "RTL", "LAND", "MISSION", "TAKEOFF", "POSCTL") and not self.ready:
-                self.statustext(f"Switching to {name} is currently not available",
-                                MAV.MAV_SEVERITY_CRITICAL)
+                self.statustext(f"Switching to {name} is currently not available", MAV.MAV_SEVERITY_CRITICAL)
                 return MAV.MAV_RESULT_TEMPORARILY_REJECTED
         else:
             name = COPTER_MODE_NAMES.get(custom_mode)
@@ -748,8 +855,7 @@ class MockAutopilot:
                 self.statustext("Flight mode change failed", MAV.MAV_SEVERITY_WARNING)
                 return MAV.MAV_RESULT_FAILED
             if name in ("GUIDED", "RTL", "LOITER", "AUTO", "SMART_RTL") and not self.ready:
-                self.statustext(f"Flight mode change failed: {name} requires position",
-                                MAV.MAV_SEVERITY_WARNING)
+                self.statustext(f"Flight mode change failed: {name} requires position", MAV.MAV_SEVERITY_WARNING)
                 return MAV.MAV_RESULT_FAILED
         previous = self.mode_name
         self.custom_mode = custom_mode
@@ -760,13 +866,14 @@ class MockAutopilot:
         return MAV.MAV_RESULT_ACCEPTED
 
     def _arm(self, arm: bool, force: bool) -> int:
-        refused = MAV.MAV_RESULT_FAILED if self.personality == "ardupilot" \
-            else MAV.MAV_RESULT_TEMPORARILY_REJECTED
+        refused = MAV.MAV_RESULT_FAILED if self.personality == "ardupilot" else MAV.MAV_RESULT_TEMPORARILY_REJECTED
         prefix = "PreArm" if self.personality == "ardupilot" else "Arming denied"
         if not arm:
             if self.armed and self.rel_alt > 0.05 and not force:
-                self.statustext("Disarm: vehicle is flying" if self.personality == "ardupilot"
-                                else "Disarming denied: not landed", MAV.MAV_SEVERITY_CRITICAL)
+                self.statustext(
+                    "Disarm: vehicle is flying" if self.personality == "ardupilot" else "Disarming denied: not landed",
+                    MAV.MAV_SEVERITY_CRITICAL,
+                )
                 return refused
             self.armed = False
             self.target = None
@@ -777,8 +884,7 @@ class MockAutopilot:
         if self.arming_refusal is not None:
             reason = self.arming_refusal
         elif not self.ready:
-            reason = "Need Position Estimate" if self.personality == "ardupilot" \
-                else "Global position required"
+            reason = "Need Position Estimate" if self.personality == "ardupilot" else "Global position required"
         elif not self.fence.allows(self.lat, self.lon):
             reason = "vehicle outside fence" if self.personality == "ardupilot" else "Geofence violation"
         elif self.personality == "ardupilot" and self.mode_name not in _COPTER_ARMABLE:
@@ -802,8 +908,7 @@ class MockAutopilot:
         # PX4: param7 is AMSL (NaN: MIS_TAKEOFF_ALT above home); switches to AUTO.TAKEOFF
         if not self.armed:
             return MAV.MAV_RESULT_TEMPORARILY_REJECTED
-        rel = (self.params["MIS_TAKEOFF_ALT"] if not math.isfinite(alt_param)
-               else alt_param - self.home[2])
+        rel = self.params["MIS_TAKEOFF_ALT"] if not math.isfinite(alt_param) else alt_param - self.home[2]
         if rel <= 0:
             return MAV.MAV_RESULT_DENIED
         self.custom_mode = px4_encode(*PX4_MODES["TAKEOFF"])
@@ -842,8 +947,9 @@ class MockAutopilot:
         mode = self.mode_name
         if not self.armed or self.rel_alt <= 0.05 or mode not in ("GUIDED", "OFFBOARD"):
             return  # ArduCopter ignores position targets outside GUIDED; PX4 outside OFFBOARD
-        self._fenced_target(from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int),
-                            self._relative_alt(msg.alt, msg.coordinate_frame))
+        self._fenced_target(
+            from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int), self._relative_alt(msg.alt, msg.coordinate_frame)
+        )
 
     def _fenced_target(self, lat: float, lon: float, alt: float) -> None:
         """Take a position target, unless an enforced fence excludes it: then it is ignored and the
@@ -865,9 +971,11 @@ class MockAutopilot:
         names = sorted(self.params)
 
         def value(name: str) -> None:
-            self.send_message(self.mav.param_value_encode(
-                name.encode(), float(self.params[name]), MAV.MAV_PARAM_TYPE_REAL32, len(names),
-                names.index(name)))
+            self.send_message(
+                self.mav.param_value_encode(
+                    name.encode(), float(self.params[name]), MAV.MAV_PARAM_TYPE_REAL32, len(names), names.index(name)
+                )
+            )
 
         mtype = msg.get_type()
         if mtype == "PARAM_REQUEST_LIST":
@@ -875,8 +983,11 @@ class MockAutopilot:
                 value(n)
         elif mtype == "PARAM_REQUEST_READ":
             pid = msg.param_id if isinstance(msg.param_id, str) else msg.param_id.decode()
-            name = pid.rstrip("\x00") if msg.param_index < 0 else (
-                names[msg.param_index] if msg.param_index < len(names) else "")
+            name = (
+                pid.rstrip("\x00")
+                if msg.param_index < 0
+                else (names[msg.param_index] if msg.param_index < len(names) else "")
+            )
             if name in self.params:
                 value(name)
         else:

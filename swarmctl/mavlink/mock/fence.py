@@ -13,9 +13,9 @@ vertices (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION) are taken; other fence ite
 
 The stored fence survives reboots, like the autopilots' own storage. It is enforced when it is on:
 ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0 off; not saved, so off again after a
-reboot); PX4 as soon as one is uploaded (its GF_ACTION parameter is not 0). With several inclusion polygons ArduPilot keeps the vehicle inside all
-of them (its default FENCE_OPTIONS) and PX4 inside any one of them; points on the boundary count as
-inside.
+reboot); PX4 as soon as one is uploaded (its GF_ACTION parameter is not 0). With several inclusion
+polygons ArduPilot keeps the vehicle inside all of them (its default FENCE_OPTIONS) and PX4 inside
+any one of them; points on the boundary count as inside.
 """
 
 from __future__ import annotations
@@ -36,8 +36,12 @@ FENCE = MAV.MAV_MISSION_TYPE_FENCE
 MAX_ITEMS = 100  # the mock's storage; ArduPilot's depends on its board (84 points on a Pixhawk)
 REQUEST_AGAIN = 1.0  # wall seconds without the requested item before asking again
 UPLOAD_TIMEOUT = 5.0  # wall seconds without any item before the transfer is cancelled
-_GLOBAL_FRAMES = {MAV.MAV_FRAME_GLOBAL, MAV.MAV_FRAME_GLOBAL_INT, MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                  MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT}
+_GLOBAL_FRAMES = {
+    MAV.MAV_FRAME_GLOBAL,
+    MAV.MAV_FRAME_GLOBAL_INT,
+    MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+    MAV.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+}
 
 
 def fence_polygons(items: list[Any]) -> list[list[tuple[float, float]]]:
@@ -48,10 +52,9 @@ def fence_polygons(items: list[Any]) -> list[list[tuple[float, float]]]:
         n = items[i].param1
         if n != int(n) or int(n) < 3:
             raise ValueError(f"item {i}: param1 {n!r} is not a polygon's vertex count (3 or more)")
-        group = items[i:i + int(n)]
+        group = items[i : i + int(n)]
         if len(group) < n or any(item.param1 != n for item in group):
-            raise ValueError(f"items {i}..: a polygon of {int(n)} vertices has {len(group)} "
-                             "items with that count")
+            raise ValueError(f"items {i}..: a polygon of {int(n)} vertices has {len(group)} items with that count")
         polygons.append([(from_deg_e7(item.x), from_deg_e7(item.y)) for item in group])
         i += int(n)
     return polygons
@@ -69,7 +72,7 @@ class _Upload:
 class MockFence:
     """One mock vehicle's geofence (the mock calls it with its lock held, from its own thread)."""
 
-    def __init__(self, mock: "MockAutopilot"):
+    def __init__(self, mock: MockAutopilot):
         self.mock = mock
         self.max_items = MAX_ITEMS
         self.items: list[Any] = []
@@ -204,9 +207,24 @@ class MockFence:
             self._ack(sender, MAV.MAV_MISSION_INVALID_SEQUENCE)
         else:
             i = self.items[msg.seq]
-            self.mock.send_message(mav.mission_item_int_encode(
-                *sender, i.seq, i.frame, i.command, 0, 0, i.param1, i.param2, i.param3, i.param4,
-                i.x, i.y, i.z, FENCE))
+            self.mock.send_message(
+                mav.mission_item_int_encode(
+                    *sender,
+                    i.seq,
+                    i.frame,
+                    i.command,
+                    0,
+                    0,
+                    i.param1,
+                    i.param2,
+                    i.param3,
+                    i.param4,
+                    i.x,
+                    i.y,
+                    i.z,
+                    FENCE,
+                )
+            )
 
     def _store(self, items: list[Any], polygons: list[list[tuple[float, float]]]) -> None:
         self.items, self.polygons = list(items), polygons
