@@ -18,8 +18,8 @@ def cli() -> None:
 from swarmctl.bench import bench_command  # noqa: E402
 from swarmctl.geo.cli import plan_command  # noqa: E402
 from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
-from swarmctl.mavlink.cli import mock_vehicle_command  # noqa: E402
 from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
+from swarmctl.sim.cli import mock_vehicle_command  # noqa: E402
 
 for command in (
     eval_command,

@@ -6,10 +6,10 @@ import contextlib
 
 import numpy as np
 
-from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
-from swarmctl.mavlink.radio import Radio, wait_quiet
+from swarmctl.knowledge.exchange import KnowledgeExchange
+from swarmctl.knowledge.model import Knowledge, disc_cells
+from swarmctl.sim.radio import Radio, wait_quiet
 from swarmctl.world.channel import Channel
-from swarmctl.world.knowledge import Knowledge, disc_cells
 from swarmctl.world.moves import MOVES
 
 

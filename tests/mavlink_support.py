@@ -8,7 +8,7 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-from swarmctl.mavlink.mock import MockAutopilot
+from swarmctl.sim.autopilot import MockAutopilot
 
 HOME = (-35.363262, 149.165237, 584.0)  # ArduPilot's SITL default site (CMAC), as in the SITL log
 FAST = dict(speedup=20.0, ready_after=2.0)

@@ -19,9 +19,9 @@ from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle, fence_items
 from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
 from swarmctl.mavlink.codec import offset_m
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
-from swarmctl.mavlink.mock.fence import fence_polygons
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.mavlink.vehicle import fence_vertices
+from swarmctl.sim.fence import fence_polygons
 from tests.geo_helpers import REPO, to_lonlat
 from tests.mavlink_support import HOME, mock_vehicles, our_threads, run
 from tests.mission_support import small_grid, wait_for

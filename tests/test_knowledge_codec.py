@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.mavlink.knowledge_codec import (
+from swarmctl.knowledge.codec import (
     CELLS_PER_CHUNK,
     HEADER,
     MAX_DELTA_CELLS,
@@ -25,7 +25,7 @@ from swarmctl.mavlink.knowledge_codec import (
     digest_chunk_count,
     mission_id_from_name,
 )
-from swarmctl.world.knowledge import Delta, Detection, Knowledge
+from swarmctl.knowledge.model import Delta, Detection, Knowledge
 
 grids = st.tuples(st.integers(1, 80), st.integers(1, 80))
 headers = st.fixed_dictionaries(

@@ -3,8 +3,8 @@ Nothing may raise; every payload is either rejected (counted) or a valid message
 
 import numpy as np
 
-from swarmctl.mavlink.knowledge_codec import PAYLOAD_TYPE_BLOCK, BitmapChunk, KnowledgeCodec, chunk_mask
-from swarmctl.world.knowledge import Delta, Detection, Knowledge
+from swarmctl.knowledge.codec import PAYLOAD_TYPE_BLOCK, BitmapChunk, KnowledgeCodec, chunk_mask
+from swarmctl.knowledge.model import Delta, Detection, Knowledge
 
 N_PAYLOADS = 100_000
 W, H = 50, 50

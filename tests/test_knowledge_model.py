@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarmctl.world.knowledge import Delta, Detection, Knowledge, Position, dequantise_phi, disc_cells, quantise_phi
+from swarmctl.knowledge.model import Delta, Detection, Knowledge, Position, dequantise_phi, disc_cells, quantise_phi
 from tests.helpers import make_env
 
 W, H = 6, 5

@@ -7,11 +7,11 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.errors import InputError
-from swarmctl.mavlink.knowledge_codec import KnowledgeCodec
-from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
-from swarmctl.mavlink.radio import Radio
+from swarmctl.knowledge.codec import KnowledgeCodec
+from swarmctl.knowledge.exchange import KnowledgeExchange
+from swarmctl.knowledge.model import Delta, Knowledge
+from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
-from swarmctl.world.knowledge import Delta, Knowledge
 from tests.knowledge_helpers import Walkers, settle, swarm
 
 DIGEST_EVERY = 5

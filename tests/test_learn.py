@@ -291,8 +291,8 @@ def test_with_straggler_frontier_the_last_vehicle_searching_heads_for_the_unexpl
 
 
 def test_in_the_field_the_last_agent_searching_takes_the_frontier_move(tiny_model):
+    from swarmctl.knowledge.model import Knowledge, Position
     from swarmctl.mission.decide import FieldPolicy
-    from swarmctl.world.knowledge import Knowledge, Position
 
     out, _ = tiny_model
     kn = Knowledge(12, 12, vehicle_id=2)

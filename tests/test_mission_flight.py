@@ -9,7 +9,7 @@ from collections import Counter
 import pytest
 from pymavlink import mavutil
 
-from swarmctl.mission.sim import SimSwarm
+from swarmctl.sim.swarm import SimSwarm
 from tests.mission_support import fly, our_threads, small_grid, wait_for
 
 

@@ -8,8 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmctl.errors import InputError
+from swarmctl.knowledge.model import Knowledge, Position
 from swarmctl.policy.ddql import make_ddql_policy
-from swarmctl.world.knowledge import Knowledge, Position
 from swarmctl.world.scenario import value_map
 from swarmctl.world.taken import remove_taken_targets
 from tests.helpers import make_env

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
-from swarmctl.mission.sim import SimSwarm  # noqa: E402
+from swarmctl.sim.swarm import SimSwarm  # noqa: E402
 
 
 def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:

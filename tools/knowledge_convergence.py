@@ -18,10 +18,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange  # noqa: E402
-from swarmctl.mavlink.radio import Radio, wait_quiet  # noqa: E402
+from swarmctl.knowledge.exchange import KnowledgeExchange  # noqa: E402
+from swarmctl.knowledge.model import Knowledge, disc_cells  # noqa: E402
+from swarmctl.sim.radio import Radio, wait_quiet  # noqa: E402
 from swarmctl.world.channel import Channel  # noqa: E402
-from swarmctl.world.knowledge import Knowledge, disc_cells  # noqa: E402
 from swarmctl.world.moves import MOVES  # noqa: E402
 
 

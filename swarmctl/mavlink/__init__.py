@@ -1,4 +1,4 @@
-"""swarmctl.mavlink: fly ArduPilot (pymavlink) and PX4 (MAVSDK) vehicles, and mock ones, over MAVLink.
+"""swarmctl.mavlink: fly ArduPilot (pymavlink) and PX4 (MAVSDK) vehicles over MAVLink.
 
 See docs/mavlink.md. The controller uses `Vehicle` (ArduPilotVehicle or PX4Vehicle) on one asyncio loop.
 Names are imported on first use, so `swarmctl` commands that never fly do not load pymavlink.
@@ -24,7 +24,6 @@ _WHERE = {
     "load_signing_key": "codec",
     "offset_m": "codec",
     "parse_connection": "codec",
-    "MockAutopilot": "mock",
 }
 __all__ = sorted(_WHERE)
 

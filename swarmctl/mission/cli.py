@@ -138,7 +138,7 @@ def demo_command(
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
     from swarmctl.mission.service import LiveView, draw_mission, gcs_address, run_controller
-    from swarmctl.mission.sim import SimSwarm
+    from swarmctl.sim.swarm import SimSwarm
 
     if not 1 <= uavs <= 50:
         raise InputError(f"--uavs {uavs}: the demo flies 1..50 mock vehicles")
@@ -174,7 +174,7 @@ def demo_command(
     try:
         swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **settings)
         if targets is not None and targets != uavs:
-            from swarmctl.mission.sim import hide_targets
+            from swarmctl.sim.swarm import hide_targets
 
             swarm.targets = hide_targets(grid, targets, seed, swarm.starts)
     except ValueError as exc:

@@ -39,16 +39,16 @@ from typing import Any
 import numpy as np
 
 from swarmctl.geo.fence import fence_contains, fence_polygon
+from swarmctl.knowledge.exchange import KnowledgeExchange
+from swarmctl.knowledge.model import Knowledge
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
-from swarmctl.mavlink.knowledge_exchange import KnowledgeExchange
 from swarmctl.mission.config import VehicleSpec
 from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
 from swarmctl.mission.guard import SafetyGuard
 from swarmctl.mission.recorder import Recorder
-from swarmctl.world.knowledge import Knowledge
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 log = logging.getLogger(__name__)

@@ -29,11 +29,11 @@ from types import SimpleNamespace
 import numpy as np
 
 from swarmctl.errors import InputError
+from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge
 from swarmctl.policy import planners
 from swarmctl.policy.ddql import allowed_moves, choose
 from swarmctl.policy.registry import make_policy
 from swarmctl.world.config import WorldConfig
-from swarmctl.world.knowledge import PHI_TOLERANCE, Knowledge
 from swarmctl.world.moves import MOVES
 
 FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, random"

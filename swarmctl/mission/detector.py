@@ -20,10 +20,8 @@ Two ways in, both read by `SensorFeed`:
   or several per datagram, for a detector process running next to the agent (PX4 through MAVSDK has
   no way to hand TUNNEL messages to the controller, so PX4 vehicles use this path).
 
-`SimDetector` is the simulated detector: a mock vehicle carries a hidden scenario (targets, the
-value map from swarmctl.world.scenario.value_map, the grid's blocked cells) and, each time it
-hovers at the mission altitude within `tolerance` metres of a cell centre, reports that cell (and
-repeats the report every `repeat` seconds while it stays).
+The simulated detector the mock vehicles carry (it writes these reports) is
+swarmctl.sim.detector.SimDetector.
 """
 
 from __future__ import annotations
@@ -31,17 +29,14 @@ from __future__ import annotations
 import asyncio
 import logging
 import socket
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from swarmctl.mavlink.codec import distance_m
-from swarmctl.mavlink.knowledge_codec import PAYLOAD_SIZE, PT_DELTA, PT_DETECTION, KnowledgeCodec
-from swarmctl.world.knowledge import Delta, Detection, dequantise_phi, disc_cells, quantise_phi
-from swarmctl.world.scenario import value_map
+from swarmctl.knowledge.codec import PT_DELTA, PT_DETECTION, KnowledgeCodec
+from swarmctl.knowledge.model import Delta, Detection, dequantise_phi
 
 log = logging.getLogger(__name__)
 
@@ -170,100 +165,3 @@ class UdpSensorSource:
             except (ValueError, RuntimeError):
                 pass
         self.sock.close()
-
-
-class SimDetector:
-    """The hidden scenario a mock vehicle carries, and the detector that reports its field of view.
-
-    `attach(mock)` adds a step hook to a MockAutopilot; reports go out on the mock's own MAVLink link,
-    or, with `udp=(host, port)`, as datagrams to a local detector socket (the PX4 path)."""
-
-    def __init__(
-        self,
-        grid: Any,
-        targets: np.ndarray,
-        vehicle_index: int,
-        mission_id: int,
-        altitude: float,
-        fov: float = FOV_CELLS,
-        tolerance: float = 1.0,
-        repeat: float = 1.0,
-        udp: tuple[str, int] | None = None,
-    ):
-        self.grid = grid
-        w, h = grid.width, grid.height
-        self.targets = np.asarray(targets, dtype=np.int64).reshape(-1, 2)
-        self.phi = value_map(self.targets, w, h)
-        self.obstacle = np.asarray(grid.blocked, dtype=bool)
-        self.target_mask = np.zeros((w, h), dtype=bool)
-        if len(self.targets):
-            self.target_mask[self.targets[:, 0], self.targets[:, 1]] = True
-        self.vehicle_index, self.altitude, self.fov = int(vehicle_index), float(altitude), float(fov)
-        self.tolerance, self.repeat = float(tolerance), float(repeat)
-        self.codec = KnowledgeCodec(mission_id, w, h)
-        self.udp = udp
-        self._sock: socket.socket | None = None
-        self._last: tuple[tuple[int, int] | None, float] = (None, 0.0)
-        self._count = 0
-        self._lock = threading.Lock()
-        self.sent_reports = 0
-        self._centres = grid.cells_to_latlon(*np.meshgrid(np.arange(w), np.arange(h), indexing="ij"))
-
-    def attach(self, mock: Any) -> SimDetector:
-        mock.step_hooks.append(self._hook)
-        return self
-
-    def close(self) -> None:
-        if self._sock is not None:
-            self._sock.close()
-            self._sock = None
-
-    def _hook(self, mock: Any, _dt: float) -> None:
-        if not mock.armed or abs(mock.rel_alt - self.altitude) > max(1.0, self.tolerance):
-            self._last = (None, 0.0)
-            return
-        x, y = self.grid.latlon_to_cell(mock.lat, mock.lon)
-        if not (0 <= x < self.grid.width and 0 <= y < self.grid.height):
-            return
-        lat, lon = float(self._centres[0][x, y]), float(self._centres[1][x, y])
-        if distance_m(mock.lat, mock.lon, lat, lon) > self.tolerance:
-            self._last = (None, 0.0)
-            return
-        now = time.monotonic()
-        if self._last[0] == (x, y) and now - self._last[1] < self.repeat:
-            return
-        self._last = ((x, y), now)
-        self.report(mock, (x, y))
-
-    def observe(self, cell: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(cells, phi, obstacle, targets) in the field of view from `cell`: the truth."""
-        c = disc_cells(cell, self.grid.width, self.grid.height, self.fov)
-        x, y = c[:, 0], c[:, 1]
-        return c, self.phi[x, y], self.obstacle[x, y], c[self.target_mask[x, y]]
-
-    def payloads(self, cell: tuple[int, int]) -> list[tuple[int, bytes]]:
-        cells, phi, obstacle, targets = self.observe(cell)
-        with self._lock:
-            self._count += 1
-            step = self._count
-        out: list[tuple[int, bytes]] = []
-        if len(targets):
-            out += self.codec.encode(Detection(self.vehicle_index, step, cell, False, targets))
-        out += self.codec.encode(Delta(self.vehicle_index, step, cell, False, cells, quantise_phi(phi), obstacle))
-        return out
-
-    def report(self, mock: Any, cell: tuple[int, int]) -> None:
-        payloads = self.payloads(cell)
-        self.sent_reports += 1
-        if self.udp is None:
-            for ptype, payload in payloads:
-                padded = list(payload) + [0] * (PAYLOAD_SIZE - len(payload))
-                mock.send_message(mock.mav.tunnel_encode(0, 0, ptype, len(payload), padded))
-            return
-        if self._sock is None:
-            self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        for ptype, payload in payloads:
-            try:
-                self._sock.sendto(self.codec.frame(ptype, payload), self.udp)
-            except OSError as exc:
-                log.debug("detector: send failed: %s", exc)

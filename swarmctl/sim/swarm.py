@@ -15,11 +15,11 @@ from typing import Any
 import numpy as np
 
 from swarmctl.geo.fence import farthest_metres, fence_polygon
-from swarmctl.mavlink.mock import MockAutopilot
-from swarmctl.mavlink.radio import Radio
 from swarmctl.mission.config import VehicleSpec
 from swarmctl.mission.controller import MissionPlan
-from swarmctl.mission.detector import SimDetector
+from swarmctl.sim.autopilot import MockAutopilot
+from swarmctl.sim.detector import SimDetector
+from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
 
 HOME_AMSL = 180.0  # metres; the Chicago Loop is about 180 m above sea level

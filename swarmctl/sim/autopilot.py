@@ -47,8 +47,8 @@ from swarmctl.mavlink.codec import (
     px4_mode_name,
     to_deg_e7,
 )
-from swarmctl.mavlink.mock.fence import FENCE, MockFence
 from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+from swarmctl.sim.fence import FENCE, MockFence
 
 MAV = mavlink2
 log = logging.getLogger(__name__)

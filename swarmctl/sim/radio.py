@@ -36,7 +36,7 @@ from collections import Counter
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.mavlink.knowledge_codec import PAYLOAD_TYPE_BLOCK, frame_sender_cell
+from swarmctl.knowledge.codec import PAYLOAD_TYPE_BLOCK, frame_sender_cell
 from swarmctl.world.channel import Channel
 
 log = logging.getLogger("swarmctl.radio")

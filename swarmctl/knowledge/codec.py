@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.world.knowledge import Delta, Detection, Report
+from swarmctl.knowledge.model import Delta, Detection, Report
 
 log = logging.getLogger("swarmctl.knowledge")
 

@@ -30,7 +30,7 @@ from pymavlink.dialects.v20 import ardupilotmega as MAV
 from swarmctl.mavlink.codec import from_deg_e7
 
 if TYPE_CHECKING:  # pragma: no cover
-    from swarmctl.mavlink.mock.autopilot import MockAutopilot
+    from swarmctl.sim.autopilot import MockAutopilot
 
 FENCE = MAV.MAV_MISSION_TYPE_FENCE
 MAX_ITEMS = 100  # the mock's storage; ArduPilot's depends on its board (84 points on a Pixhawk)

@@ -80,7 +80,7 @@ def mock_vehicle_command(
     duration: float,
 ) -> None:
     """Run a mock ArduCopter or PX4 vehicle that speaks MAVLink over a real socket."""
-    from swarmctl.mavlink.mock import MockAutopilot
+    from swarmctl.sim.autopilot import MockAutopilot
 
     if not 1 <= sysid <= 255:
         raise InputError(f"--sysid {sysid}: a MAVLink system id is 1..255")

@@ -34,8 +34,8 @@ from collections import Counter
 import numpy as np
 
 from swarmctl.errors import InputError
-from swarmctl.mavlink.knowledge_codec import BitmapChunk, KnowledgeCodec, chunk_mask
-from swarmctl.world.knowledge import Delta, Detection, Knowledge
+from swarmctl.knowledge.codec import BitmapChunk, KnowledgeCodec, chunk_mask
+from swarmctl.knowledge.model import Delta, Detection, Knowledge
 
 log = logging.getLogger("swarmctl.knowledge")
 
