@@ -309,15 +309,14 @@ class Controller:
 
     async def _connect(self, a: Agent) -> None:
         """Connect the agent's vehicle with the driver its autopilot reports (see mavlink/connect.py). A
-        vehicle that disagrees with the mission file stops the mission; the others get their end action."""
-        from swarmctl.mavlink.connect import AutopilotMismatch
-
+        vehicle that disagrees with the mission file (AutopilotMismatch, an InputError) stops the mission;
+        the others get their end action."""
         spec = a.spec
         try:
             vehicle = await self.connector.connect(
                 spec.connection, spec.sysid, name=spec.name, autopilot=spec.autopilot, timeout=self.plan.connect_timeout
             )
-        except AutopilotMismatch as exc:
+        except InputError as exc:
             a.error = str(exc)
             self._state(a, FAILED, error=a.error)
             if self.mission_error is None:
