@@ -1,4 +1,4 @@
-"""Pure helpers: angle and PX4-mode codecs, connection strings, key files, CLI input errors."""
+"""Pure helpers: angle codecs, local offsets, connection strings, key files, CLI input errors."""
 
 from __future__ import annotations
 
@@ -16,9 +16,6 @@ from swarmctl.mavlink.codec import (
     ne_m,
     offset_m,
     parse_connection,
-    px4_decode,
-    px4_encode,
-    px4_mode_name,
     to_deg_e7,
 )
 
@@ -42,20 +39,6 @@ def test_deg_e7_integers_survive_the_float_trip(e7):
 def test_deg_e7_rejects_non_angles(bad):
     with pytest.raises(ValueError):
         to_deg_e7(bad)
-
-
-@given(st.integers(0, 255), st.integers(0, 255))
-def test_px4_custom_mode_round_trip(main_mode, sub_mode):
-    cm = px4_encode(main_mode, sub_mode)
-    assert 0 <= cm < 2**32 and cm & 0xFFFF == 0
-    assert px4_decode(cm) == (main_mode, sub_mode)
-
-
-def test_px4_known_modes():
-    # values PX4 puts in HEARTBEAT.custom_mode
-    assert px4_encode(4, 3) == 0x03040000 and px4_mode_name(0x03040000) == "HOLD"
-    assert px4_mode_name(px4_encode(6)) == "OFFBOARD"
-    assert px4_mode_name(px4_encode(4, 5)) == "RTL"
 
 
 @given(lat_st, st.floats(-179, 179), st.floats(-2000, 2000), st.floats(-2000, 2000))

@@ -8,7 +8,8 @@ import time
 import pytest
 
 from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
-from swarmctl.mavlink.codec import distance_m, px4_encode
+from swarmctl.mavlink.autopilots.descriptions import px4_encode
+from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
 from tests.mavlink_support import HOME, mock_vehicles, our_threads, run

@@ -1,6 +1,7 @@
 """swarmctl.mavlink: fly ArduPilot (pymavlink) and PX4 (MAVSDK) vehicles over MAVLink.
 
-See docs/mavlink.md. The controller uses `Vehicle` (ArduPilotVehicle or PX4Vehicle) on one asyncio loop.
+See docs/mavlink.md. The controller uses `Vehicle` (ArduPilotVehicle or PX4Vehicle) on one asyncio loop;
+`Connector` picks the driver from what each vehicle reports (its firmware's `Autopilot` description).
 Names are imported on first use, so `swarmctl` commands that never fly do not load pymavlink.
 """
 
@@ -10,6 +11,11 @@ import importlib
 from typing import Any
 
 _WHERE = {
+    "Autopilot": "autopilots.base",
+    "autopilot_for_heartbeat": "autopilots.base",
+    "autopilot_named": "autopilots.base",
+    "AutopilotMismatch": "connect",
+    "Connector": "connect",
     "ArduPilotVehicle": "autopilots.ardupilot",
     "PX4Vehicle": "autopilots.px4",
     "MavlinkLink": "network",

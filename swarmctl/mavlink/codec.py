@@ -1,4 +1,6 @@
-"""Small, pure conversions shared by the link, the autopilot drivers and the mock.
+"""Small, pure, firmware-neutral conversions shared by the link, the autopilot drivers and the mock:
+degE7 angles, flat-earth offsets, MAV_RESULT names, connection strings and signing key files.
+Flight modes differ by firmware and live in swarmctl/mavlink/autopilots/descriptions.py.
 
 Nothing here does I/O except `load_signing_key`, which reads one small file.
 """
@@ -50,78 +52,6 @@ def ne_m(lat0: float, lon0: float, lat1: float, lon1: float) -> tuple[float, flo
 def distance_m(lat0: float, lon0: float, lat1: float, lon1: float) -> float:
     n, e = ne_m(lat0, lon0, lat1, lon1)
     return math.hypot(n, e)
-
-
-# --- ArduCopter flight modes (HEARTBEAT.custom_mode) ------------------------------------------------
-
-COPTER_MODES: dict[str, int] = {
-    "STABILIZE": 0,
-    "ACRO": 1,
-    "ALT_HOLD": 2,
-    "AUTO": 3,
-    "GUIDED": 4,
-    "LOITER": 5,
-    "RTL": 6,
-    "CIRCLE": 7,
-    "LAND": 9,
-    "DRIFT": 11,
-    "SPORT": 13,
-    "FLIP": 14,
-    "AUTOTUNE": 15,
-    "POSHOLD": 16,
-    "BRAKE": 17,
-    "THROW": 18,
-    "AVOID_ADSB": 19,
-    "GUIDED_NOGPS": 20,
-    "SMART_RTL": 21,
-}
-COPTER_MODE_NAMES: dict[int, str] = {v: k for k, v in COPTER_MODES.items()}
-
-# --- PX4 custom mode: main mode in bits 16..23, sub mode in bits 24..31 ------------------------------
-
-PX4_MAIN = {"MANUAL": 1, "ALTCTL": 2, "POSCTL": 3, "AUTO": 4, "ACRO": 5, "OFFBOARD": 6, "STABILIZED": 7, "RATTITUDE": 8}
-PX4_AUTO_SUB = {
-    "READY": 1,
-    "TAKEOFF": 2,
-    "LOITER": 3,
-    "MISSION": 4,
-    "RTL": 5,
-    "LAND": 6,
-    "RTGS": 7,
-    "FOLLOW_TARGET": 8,
-    "PRECLAND": 9,
-}
-# Names used across swarmctl for PX4 modes, with their (main, sub) pair.
-PX4_MODES: dict[str, tuple[int, int]] = {
-    "MANUAL": (1, 0),
-    "ALTCTL": (2, 0),
-    "POSCTL": (3, 0),
-    "OFFBOARD": (6, 0),
-    "STABILIZED": (7, 0),
-    "ACRO": (5, 0),
-    "READY": (4, 1),
-    "TAKEOFF": (4, 2),
-    "HOLD": (4, 3),
-    "MISSION": (4, 4),
-    "RTL": (4, 5),
-    "LAND": (4, 6),
-}
-PX4_MODE_NAMES: dict[tuple[int, int], str] = {v: k for k, v in PX4_MODES.items()}
-
-
-def px4_encode(main_mode: int, sub_mode: int = 0) -> int:
-    if not (0 <= main_mode <= 255 and 0 <= sub_mode <= 255):
-        raise ValueError(f"PX4 main/sub mode out of range: {main_mode}, {sub_mode}")
-    return (sub_mode << 24) | (main_mode << 16)
-
-
-def px4_decode(custom_mode: int) -> tuple[int, int]:
-    return (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-
-
-def px4_mode_name(custom_mode: int) -> str:
-    main, sub = px4_decode(custom_mode)
-    return PX4_MODE_NAMES.get((main, sub)) or PX4_MODE_NAMES.get((main, 0)) or f"PX4({main},{sub})"
 
 
 # --- MAV_RESULT names ---------------------------------------------------------------------------------

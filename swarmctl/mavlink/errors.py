@@ -32,3 +32,11 @@ class WaitTimeout(MavlinkError):
         self.what, self.vehicle = what, vehicle
         extra = f" ({detail})" if detail else ""
         super().__init__(f"{vehicle}: timed out after {timeout:g} s waiting for {what}{extra}")
+
+
+class WrongAutopilot(MavlinkError):
+    """The vehicle reports another autopilot than the one its driver flies (e.g. MAVSDK finds ArduPilot)."""
+
+    def __init__(self, vehicle: str, reported: str, flies: str):
+        self.vehicle, self.reported, self.flies = vehicle, reported, flies
+        super().__init__(f"{vehicle}: the vehicle reports autopilot {reported}; this driver flies {flies}")

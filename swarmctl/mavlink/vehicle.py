@@ -10,12 +10,13 @@ import abc
 import asyncio
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any, ClassVar
 
+from swarmctl.mavlink.autopilots.base import Autopilot
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import WaitTimeout
-
-DEFAULT_ALTITUDE_M = 40.0
 
 
 @dataclass(frozen=True)
@@ -60,8 +61,18 @@ class Vehicle(abc.ABC):
     """A vehicle the controller commands. Implemented by ArduPilotVehicle and PX4Vehicle."""
 
     name: str
-    autopilot: str  # "ardupilot" or "px4"
+    autopilot_info: ClassVar[Autopilot | None]  # the firmware's description (None: not known yet)
     target: Target | None = None
+
+    @property
+    def autopilot(self) -> str | None:
+        """The firmware's name ("ardupilot", "px4"), or None while it is not known."""
+        return None if self.autopilot_info is None else self.autopilot_info.name
+
+    def add_listener(self, callback: Callable[[Any], None]) -> bool:
+        """Call callback(msg) with the MAVLink messages received on this vehicle's link, where its
+        driver sees them; False when it does not (MAVSDK hands out no raw messages)."""
+        return False
 
     # --- connection and readiness -------------------------------------------------------------------
     @abc.abstractmethod
@@ -86,11 +97,12 @@ class Vehicle(abc.ABC):
         """Arm, retrying while the autopilot still refuses (not ready yet) until timeout."""
 
     @abc.abstractmethod
-    async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
-        """Ready, arm, take off and return once rel_alt is (nearly) reached."""
+    async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
+        """Ready, arm, take off to rel_alt (metres above home, the mission's altitude) and return once it
+        is (nearly) reached."""
 
     @abc.abstractmethod
-    async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+    async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         """Send a position target (degrees, metres above home). Returns without waiting."""
 
     @abc.abstractmethod

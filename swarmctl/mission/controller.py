@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_contains, fence_polygon
 from swarmctl.knowledge.exchange import KnowledgeExchange
 from swarmctl.knowledge.model import Knowledge
@@ -200,7 +201,6 @@ class Controller:
         recorder: Recorder,
         *,
         view: Callable[[Controller], None] | None = None,
-        vehicle_factory: Callable[[VehicleSpec, Any], Any] | None = None,
     ):
         self.plan = plan
         self.rec = recorder
@@ -209,9 +209,10 @@ class Controller:
         self.guard = SafetyGuard(self.grid.blocked, plan.altitude)
         self.fence = fence_polygon(self.grid) if plan.fence else None  # (lat, lon) vertices
         self.policy = FieldPolicy(plan.policy, seed=plan.seed)
-        self.vehicle_factory = vehicle_factory
         self.agents: list[Agent] = []
-        self.links: dict[str, Any] = {}
+        self.links: dict[str, Any] = {}  # connection -> MavlinkLink, shared by the vehicles on it
+        self.connector: Any = None  # swarmctl.mavlink.connect.Connector, made by _open
+        self.mission_error: InputError | None = None  # what stopped the mission: raised by run()
         self.sources: list[UdpSensorSource] = []
         self.gcs = GcsForwarder(*plan.gcs) if plan.gcs else None
         self.step = 0
@@ -259,33 +260,29 @@ class Controller:
             await asyncio.shield(self._finish_safely())
             raise
         await self._finish_safely()
+        if self.mission_error is not None:
+            raise self.mission_error  # bad input found while flying: the mission file must change
         return self.outcome or "failed"
 
     # --- set-up ----------------------------------------------------------------------------------------
     async def _open(self) -> None:
-        from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
-        from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
-        from swarmctl.mavlink.network import MavlinkLink
+        """One agent per vehicle of this process; the vehicles are connected (and their autopilots
+        identified) by _start."""
+        from swarmctl.mavlink.connect import Connector, NotConnected
 
         plan, w, h = self.plan, self.grid.width, self.grid.height
+        self.connector = Connector(
+            self.links,
+            signing_key=plan.signing_key,
+            telemetry_hz=plan.telemetry_hz,
+            on_open=self._watch_link,
+            source=str(plan.mission_file or "the mission"),
+        )
         for i, spec in enumerate(plan.vehicles):
             if plan.only is not None and i not in plan.only:
                 continue
+            self.connector.expect(spec.connection)
             feed = SensorFeed(i, plan.mission_id, w, h)
-            if spec.autopilot == "px4":
-                vehicle = PX4Vehicle(spec.connection, sysid=spec.sysid, name=spec.name)
-            else:
-                link = self.links.get(spec.connection)
-                if link is None:
-                    link = await MavlinkLink(spec.connection, signing_key=plan.signing_key).open()
-                    self.rec.tap_link(link)
-                    link.add_listener(self._count_gaps)
-                    link.on_link_change(self._link_change)
-                    if self.gcs is not None:
-                        link.add_listener(self.gcs.forward)
-                    self.links[spec.connection] = link
-                link.add_listener(feed.listener(spec.sysid))
-                vehicle = ArduPilotVehicle(link, spec.sysid, name=spec.name, telemetry_rate_hz=plan.telemetry_hz)
             if i in plan.detectors:
                 host, port = plan.detectors[i]
                 self.sources.append(UdpSensorSource(feed, host, port).start())
@@ -300,7 +297,34 @@ class Controller:
                 push=push,
             )
             exchange.sock = _TapSocket(exchange.sock, self.rec)
-            self.agents.append(Agent(i, spec, vehicle, exchange, feed))
+            self.agents.append(Agent(i, spec, NotConnected(spec.name), exchange, feed))
+
+    def _watch_link(self, link: Any) -> None:
+        """A link the connector opened: record it, count its losses, follow its vehicles, forward it."""
+        self.rec.tap_link(link)
+        link.add_listener(self._count_gaps)
+        link.on_link_change(self._link_change)
+        if self.gcs is not None:
+            link.add_listener(self.gcs.forward)
+
+    async def _connect(self, a: Agent) -> None:
+        """Connect the agent's vehicle with the driver its autopilot reports (see mavlink/connect.py). A
+        vehicle that disagrees with the mission file (AutopilotMismatch, an InputError) stops the mission;
+        the others get their end action."""
+        spec = a.spec
+        try:
+            vehicle = await self.connector.connect(
+                spec.connection, spec.sysid, name=spec.name, autopilot=spec.autopilot, timeout=self.plan.connect_timeout
+            )
+        except InputError as exc:
+            a.error = str(exc)
+            self._state(a, FAILED, error=a.error)
+            if self.mission_error is None:
+                self.mission_error, self.outcome = exc, "failed"
+            self.stop()
+            return
+        a.vehicle = vehicle
+        vehicle.add_listener(a.feed.listener(spec.sysid))  # the detector's TUNNEL reports, where they come
 
     def _count_gaps(self, msg: Any) -> None:
         """MAVLink sequence gaps per sender: packets lost on the way to us."""
@@ -327,7 +351,9 @@ class Controller:
         plan = self.plan
         try:
             self._state(a, CONNECT)
-            await self._until_stopped(a.vehicle.connect(plan.connect_timeout))
+            await self._until_stopped(self._connect(a))
+            if self.stopping:
+                return
             self._state(a, PREFLIGHT)
             await self._until_stopped(a.vehicle.wait_ready(plan.ready_timeout))
             battery = a.battery()
@@ -523,17 +549,16 @@ class Controller:
                 await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
 
     def _pilot_has_it(self, a: Agent) -> bool:
-        """The pilot took over. PX4's mode reaches us through MAVSDK's subscription, which was seen to
-        report the pre-take-off POSCTL for a moment after the take-off: it must last 1.5 s."""
-        if not _pilot_mode(a.spec.autopilot, a.vehicle.mode):
+        """The pilot took over: the vehicle reports a pilot's mode (its autopilot's is_pilot_mode), and
+        has reported one for the autopilot's mode_debounce_s (a mode report may lag behind the vehicle)."""
+        info = a.vehicle.autopilot_info
+        if info is None or not info.is_pilot_mode(a.vehicle.mode):
             a.pilot_since = None
             return False
-        if a.spec.autopilot != "px4":
-            return True
         now = time.monotonic()
         if a.pilot_since is None:
             a.pilot_since = now
-        return now - a.pilot_since >= 1.5
+        return now - a.pilot_since >= info.mode_debounce_s
 
     def _others_hovering(self) -> bool:
         """Onboard mode: every vehicle of the mission flown by another process is known (through the
@@ -795,7 +820,7 @@ class Controller:
                 dict(
                     name=a.name,
                     sysid=a.spec.sysid,
-                    autopilot=a.spec.autopilot,
+                    autopilot=a.vehicle.autopilot,  # what the vehicle reported (None: never connected)
                     final_state=a.state,
                     end_action=a.end_action,
                     end_state=a.end_state,
@@ -844,17 +869,6 @@ class Controller:
         if extra:
             out.update(extra)
         return out
-
-
-# PX4 modes (as MAVSDK names them) a pilot selects with the sticks; swarmctl flies PX4 in HOLD/TAKEOFF
-_PX4_PILOT_MODES = {"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"}
-
-
-def _pilot_mode(autopilot: str, mode: str) -> bool:
-    """True when the vehicle is no longer in the mode swarmctl flies it in (the pilot took over)."""
-    if autopilot == "px4":
-        return mode in _PX4_PILOT_MODES
-    return mode not in ("GUIDED", "UNKNOWN")
 
 
 async def _cancel(task: asyncio.Future) -> None:

@@ -1,5 +1,8 @@
 """A mock ArduCopter / PX4 multicopter: a real MAVLink 2 endpoint (pymavlink bytes over UDP/TCP/serial).
 
+What differs between the two firmwares comes from the mock's personality (personality.py), built on
+the same autopilot descriptions the controller flies by; this module holds what they share.
+
 It behaves like the real autopilot as far as a controller can see (checked against a real ArduCopter
 SITL log): HEARTBEAT type/autopilot/base_mode/custom_mode, pre-arm checks that fail for the first
 seconds (FAILED + a "PreArm:" STATUSTEXT), takeoff only when armed in GUIDED, COMMAND_ACK results,
@@ -34,21 +37,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from swarmctl.mavlink.codec import (
-    COPTER_MODE_NAMES,
-    COPTER_MODES,
-    PX4_MODES,
-    distance_m,
-    from_deg_e7,
-    ne_m,
-    offset_m,
-    px4_decode,
-    px4_encode,
-    px4_mode_name,
-    to_deg_e7,
-)
+from swarmctl.mavlink.codec import distance_m, from_deg_e7, ne_m, offset_m, to_deg_e7
 from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
 from swarmctl.sim.fence import FENCE, MockFence
+from swarmctl.sim.personality import Personality, personality_named
 
 MAV = mavlink2
 log = logging.getLogger(__name__)
@@ -65,12 +57,6 @@ _SENSORS = (
     | MAV.MAV_SYS_STATUS_PREARM_CHECK
 )
 
-_PX4_DEFAULT_STREAMS = {  # PX4 streams telemetry unasked (ArduPilot sends only heartbeats)
-    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.2,
-    MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
-    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
-}
 _STREAMABLE = {
     MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     MAV.MAVLINK_MSG_ID_HOME_POSITION,
@@ -80,24 +66,6 @@ _STREAMABLE = {
     MAV.MAVLINK_MSG_ID_HEARTBEAT,
     MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
 }
-
-_PX4_PARAMS: dict[str, float] = {  # the few parameters a PX4 ground station touches
-    "MIS_TAKEOFF_ALT": 2.5,
-    "MPC_XY_CRUISE": 5.0,
-    "RTL_RETURN_ALT": 30.0,
-    "NAV_DLL_ACT": 2.0,
-    "COM_OF_LOSS_T": 1.0,
-    "SYS_AUTOSTART": 4001.0,
-    "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
-}
-_ARDUPILOT_PARAMS: dict[str, float] = {  # ArduCopter's fence parameters, at their defaults
-    "FENCE_ENABLE": 0.0,
-    "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
-    "FENCE_RADIUS": 300.0,
-    "FENCE_ACTION": 1.0,
-    "FENCE_MARGIN": 2.0,
-}
-_COPTER_ARMABLE = {"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"}
 
 
 class _Outbox:
@@ -148,12 +116,10 @@ class MockAutopilot:
         seed: int | None = None,
         tick: float = 0.02,
     ):
-        if autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', not {autopilot!r}")
+        self.personality: Personality = personality_named(autopilot)  # ValueError naming the choices
         if not 1 <= sysid <= 255:
             raise ValueError("sysid must be 1..255")
         self.sysid, self.compid, self.connect = sysid, compid, connect
-        self.personality = autopilot
         self.home = home
         self.speed, self.climb_rate, self.descent_rate = speed, climb_rate, descent_rate
         self.speedup = speedup
@@ -185,7 +151,7 @@ class MockAutopilot:
         self.ignored = 0  # messages seen that were addressed to another system
         self.fence = MockFence(self)  # made here, not at boot: the stored fence survives reboots
         # parameters are stored too (the fence polygon is enforced; the circle and altitude are not)
-        self.params = dict(_PX4_PARAMS if self.personality == "px4" else _ARDUPILOT_PARAMS)
+        self.params = dict(self.personality.params)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -206,9 +172,7 @@ class MockAutopilot:
         self.lat, self.lon, self.rel_alt = lat, lon, 0.0
         self.vel = (0.0, 0.0, 0.0)  # north, east, down m/s
         self.armed = False
-        self.custom_mode = (
-            COPTER_MODES["STABILIZE"] if self.personality == "ardupilot" else px4_encode(*PX4_MODES["POSCTL"])
-        )
+        self.custom_mode = self.personality.custom_mode(self.personality.boot_mode)
         self.target: tuple[float, float, float] | None = None  # lat, lon, rel_alt
         self.battery = getattr(self, "battery", 100.0)
         self.ready = False
@@ -216,13 +180,10 @@ class MockAutopilot:
         self.last_gcs_heartbeat: float | None = None
         self.gcs_failsafe = False
         self.last_setpoint = -1e9
-        # ArduPilot's DO_FENCE_ENABLE is not saved: after a reboot the stored fence is off until enabled
-        # again (FENCE_ENABLE 0). PX4 enforces a stored fence from boot (GF_ACTION).
+        # DO_FENCE_ENABLE is not saved: after a reboot a stored fence is off until enabled again (where
+        # the personality's fence_enforced follows the switch at all)
         self.fence.enabled = False
-        if self.personality == "px4":
-            self.intervals = {k: v for k, v in _PX4_DEFAULT_STREAMS.items()}
-        else:
-            self.intervals = {}
+        self.intervals = dict(self.personality.default_streams)
         self.next_due: dict[int, float] = {}
         self.next_heartbeat = now
 
@@ -309,10 +270,13 @@ class MockAutopilot:
     # --- observation -----------------------------------------------------------------------------------
 
     @property
+    def autopilot(self) -> str:
+        """The firmware the mock plays ("ardupilot", "px4")."""
+        return self.personality.name
+
+    @property
     def mode_name(self) -> str:
-        if self.personality == "px4":
-            return px4_mode_name(self.custom_mode)
-        return COPTER_MODE_NAMES.get(self.custom_mode, str(self.custom_mode))
+        return self.personality.mode_name(self.custom_mode)
 
     def state(self) -> MockState:
         with self._lock:
@@ -444,26 +408,11 @@ class MockAutopilot:
                     self.send_message(m)
 
     def _heartbeat(self) -> Any:
-        base = MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-        if self.personality == "ardupilot":
-            # as ArduCopter SITL sends them: 89 disarmed, 217 armed (log reference)
-            base |= (
-                MAV.MAV_MODE_FLAG_STABILIZE_ENABLED
-                | MAV.MAV_MODE_FLAG_GUIDED_ENABLED
-                | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-            )
-            autopilot = MAV.MAV_AUTOPILOT_ARDUPILOTMEGA
-        else:
-            main, _sub = px4_decode(self.custom_mode)
-            base |= MAV.MAV_MODE_FLAG_STABILIZE_ENABLED
-            if main in (4, 6):
-                base |= MAV.MAV_MODE_FLAG_GUIDED_ENABLED | MAV.MAV_MODE_FLAG_AUTO_ENABLED
-            else:
-                base |= MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-            autopilot = MAV.MAV_AUTOPILOT_PX4
+        base = self.personality.base_mode(self.custom_mode)
         if self.armed:
             base |= MAV.MAV_MODE_FLAG_SAFETY_ARMED
         status = MAV.MAV_STATE_ACTIVE if self.armed else MAV.MAV_STATE_STANDBY if self.ready else MAV.MAV_STATE_BOOT
+        autopilot = self.personality.autopilot.mav_autopilot
         return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode, status)
 
     def _reported_latlon(self) -> tuple[float, float]:
@@ -480,8 +429,8 @@ class MockAutopilot:
     def _build(self, msg_id: int) -> Any:
         home_lat, home_lon, home_alt = self.home
         if msg_id == MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            if not self.ready and self.personality == "px4":
-                return None  # PX4 publishes no global position before it has one
+            if not self.ready and not self.personality.position_before_ready:
+                return None
             if self.ready:
                 lat, lon = self._reported_latlon()
                 lat_i, lon_i = to_deg_e7(lat), to_deg_e7(lon)
@@ -545,20 +494,9 @@ class MockAutopilot:
         if msg_id == MAV.MAVLINK_MSG_ID_HEARTBEAT:
             return self._heartbeat()
         if msg_id == MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-            caps = (
-                MAV.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                | MAV.MAV_PROTOCOL_CAPABILITY_MISSION_INT
-                | MAV.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
-                | MAV.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-                | (
-                    MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
-                    if self.personality == "px4"
-                    else MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
-                )
-            )
-            version = (1 << 24) | (15 << 16) if self.personality == "px4" else (4 << 24) | (5 << 16)
+            p = self.personality
             return self.mav.autopilot_version_encode(
-                caps, version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5357_0000 + self.sysid
+                p.capabilities, p.version, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 0x5357_0000 + self.sysid
             )
         return None
 
@@ -578,9 +516,8 @@ class MockAutopilot:
         self.fence.tick(now)
         if not self.ready and self.sim_time >= self.ready_after:
             self.ready = self.home_set = True
-            if self.personality == "ardupilot":
-                self.statustext("EKF3 IMU0 origin set")
-                self.statustext("ArduPilot Ready")
+            for text in self.personality.ready_texts:
+                self.statustext(text)
         self._failsafe(now)
         if self.armed:
             self.battery = max(
@@ -601,10 +538,10 @@ class MockAutopilot:
                 self._move(home_lat, home_lon, self.rel_alt, dt)
             else:
                 self._move(home_lat, home_lon, 0.0, dt)
-        elif self.target is not None and mode in ("GUIDED", "TAKEOFF", "HOLD", "OFFBOARD"):
+        elif self.target is not None and mode in self.personality.target_modes:
             self._move(*self.target, dt)
-            if mode == "TAKEOFF" and abs(self.rel_alt - self.target[2]) < 0.01:
-                self.custom_mode = px4_encode(*PX4_MODES["HOLD"])
+            if mode == self.personality.takeoff_mode and abs(self.rel_alt - self.target[2]) < 0.01:
+                self.personality.takeoff_reached(self)
         else:
             self.vel = (0.0, 0.0, 0.0)
         self._fence_breach()
@@ -612,11 +549,11 @@ class MockAutopilot:
             self.armed = False  # landed: disarm, as both autopilots do
             self.target = None
             self.vel = (0.0, 0.0, 0.0)
-            self.statustext("Disarming motors" if self.personality == "ardupilot" else "Disarmed")
+            self.statustext(self.personality.landed_text)
 
     def _fence_breach(self) -> None:
-        """Outside an enforced fence in flight: the breach action, once per breach. ArduPilot's
-        FENCE_ACTION default, RTL; PX4's GF_ACTION default, Hold (the mock does only these)."""
+        """Outside an enforced fence in flight: the breach action, once per breach: the personality's
+        breach_mode (ArduPilot's FENCE_ACTION default, RTL; PX4's GF_ACTION default, Hold)."""
         f = self.fence
         if f.allows(self.lat, self.lon):
             f.breached = False
@@ -627,12 +564,8 @@ class MockAutopilot:
         f.breaches += 1
         if self.mode_name in ("RTL", "LAND"):
             return
-        if self.personality == "ardupilot":
-            self._set_mode_name("RTL")
-            self.statustext("Fence breached: RTL", MAV.MAV_SEVERITY_CRITICAL)
-        else:
-            self._set_mode_name("HOLD")
-            self.statustext("Geofence violated: holding", MAV.MAV_SEVERITY_CRITICAL)
+        self._set_mode_name(self.personality.breach_mode)
+        self.statustext(self.personality.breach_text, MAV.MAV_SEVERITY_CRITICAL)
 
     def _move(self, lat: float, lon: float, alt: float, dt: float) -> None:
         """Fly toward (lat, lon, alt): horizontal speed limit, climb and descent rates, exact arrival."""
@@ -669,12 +602,7 @@ class MockAutopilot:
             self.statustext("GCS Failsafe: disarming", MAV.MAV_SEVERITY_CRITICAL)
         elif self.mode_name not in ("RTL", "LAND"):
             self._set_mode_name("RTL")
-            self.statustext(
-                "GCS Failsafe"
-                if self.personality == "ardupilot"
-                else "Failsafe: no connection to ground station, returning",
-                MAV.MAV_SEVERITY_CRITICAL,
-            )
+            self.statustext(self.personality.failsafe_text, MAV.MAV_SEVERITY_CRITICAL)
 
     # --- receiving ----------------------------------------------------------------------------------------
 
@@ -774,7 +702,7 @@ class MockAutopilot:
             if interval_us < 0:
                 self.intervals.pop(msg_id, None)
             elif interval_us == 0:
-                default = _PX4_DEFAULT_STREAMS.get(msg_id) if self.personality == "px4" else None
+                default = self.personality.default_streams.get(msg_id)
                 if default:
                     self.intervals[msg_id] = default
                 else:
@@ -794,7 +722,7 @@ class MockAutopilot:
                 R.MAV_CMD_GET_HOME_POSITION: R.MAVLINK_MSG_ID_HOME_POSITION,
             }[command]
             if msg_id not in _STREAMABLE:
-                return R.MAV_RESULT_UNSUPPORTED if self.personality == "px4" else R.MAV_RESULT_FAILED
+                return self.personality.request_refused
             reply = self._build(msg_id)
             if reply is None:
                 return R.MAV_RESULT_FAILED  # e.g. home not set yet (as in the SITL log)
@@ -802,28 +730,26 @@ class MockAutopilot:
             self.send_message(reply)
             return None
         if command == R.MAV_CMD_DO_SET_MODE:
-            if self.personality == "px4":
-                return self._set_custom_mode(px4_encode(int(p[1]), int(p[2])))
-            return self._set_custom_mode(int(p[1]))
+            return self._set_custom_mode(self.personality.autopilot.custom_mode_from_command(p[1], p[2]))
         if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
             return self._arm(p[0] >= 0.5, p[1] == 21196)
         if command == R.MAV_CMD_NAV_TAKEOFF:
-            return self._takeoff(p[6])
+            return self.personality.takeoff(self, p[6])
         if command == R.MAV_CMD_NAV_LAND:
             return self._set_mode_name("LAND")
         if command == R.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             return self._set_mode_name("RTL")
         if command == R.MAV_CMD_DO_REPOSITION:
             return self._reposition(p, frame)
-        if command == R.MAV_CMD_DO_FENCE_ENABLE and self.personality == "ardupilot":
-            return self.fence.enable(p[0])  # (PX4 enforces an uploaded fence by its GF_ACTION)
+        if command == R.MAV_CMD_DO_FENCE_ENABLE and self.personality.fence_enable_command:
+            return self.fence.enable(p[0])
         if command == R.MAV_CMD_DO_CHANGE_SPEED:
             if p[1] > 0:
                 self.speed = p[1]
             return R.MAV_RESULT_ACCEPTED
         if command == R.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN:
             if self.armed:
-                return R.MAV_RESULT_DENIED if self.personality == "px4" else R.MAV_RESULT_FAILED
+                return self.personality.reboot_refused
             if int(p[0]) == 1:
                 self._ack(msg, command, R.MAV_RESULT_ACCEPTED)
                 self.reboot(1.0)
@@ -832,49 +758,26 @@ class MockAutopilot:
         return R.MAV_RESULT_UNSUPPORTED
 
     def _set_mode_name(self, name: str) -> int:
-        if self.personality == "px4":
-            return self._set_custom_mode(px4_encode(*PX4_MODES[name]))
-        return self._set_custom_mode(COPTER_MODES[name])
+        return self._set_custom_mode(self.personality.custom_mode(name))
 
     def _set_custom_mode(self, custom_mode: int) -> int:
-        if self.personality == "px4":
-            main, sub = px4_decode(custom_mode)
-            name = px4_mode_name(custom_mode)
-            if name.startswith("PX4("):
-                return MAV.MAV_RESULT_UNSUPPORTED
-            if name == "OFFBOARD" and time.monotonic() - self.last_setpoint > 0.5:
-                # PX4 needs a setpoint stream (> 2 Hz) before it accepts OFFBOARD
-                self.statustext("Switching to Offboard is currently not available", MAV.MAV_SEVERITY_CRITICAL)
-                return MAV.MAV_RESULT_TEMPORARILY_REJECTED
-            if name in ("HOLD", "RTL", "LAND", "MISSION", "TAKEOFF", "POSCTL") and not self.ready:
-                self.statustext(f"Switching to {name} is currently not available", MAV.MAV_SEVERITY_CRITICAL)
-                return MAV.MAV_RESULT_TEMPORARILY_REJECTED
-        else:
-            name = COPTER_MODE_NAMES.get(custom_mode)
-            if name is None:
-                self.statustext("Flight mode change failed", MAV.MAV_SEVERITY_WARNING)
-                return MAV.MAV_RESULT_FAILED
-            if name in ("GUIDED", "RTL", "LOITER", "AUTO", "SMART_RTL") and not self.ready:
-                self.statustext(f"Flight mode change failed: {name} requires position", MAV.MAV_SEVERITY_WARNING)
-                return MAV.MAV_RESULT_FAILED
+        refused = self.personality.refuse_mode(self, custom_mode)
+        if refused is not None:
+            return refused
         previous = self.mode_name
         self.custom_mode = custom_mode
         now_name = self.mode_name
-        if now_name in ("GUIDED", "HOLD") and previous != now_name:
+        if now_name == self.personality.autopilot.command_mode and previous != now_name:
             # hold where we are until told otherwise
             self.target = (self.lat, self.lon, self.rel_alt) if self.rel_alt > 0.05 else None
         return MAV.MAV_RESULT_ACCEPTED
 
     def _arm(self, arm: bool, force: bool) -> int:
-        refused = MAV.MAV_RESULT_FAILED if self.personality == "ardupilot" else MAV.MAV_RESULT_TEMPORARILY_REJECTED
-        prefix = "PreArm" if self.personality == "ardupilot" else "Arming denied"
+        p = self.personality
         if not arm:
             if self.armed and self.rel_alt > 0.05 and not force:
-                self.statustext(
-                    "Disarm: vehicle is flying" if self.personality == "ardupilot" else "Disarming denied: not landed",
-                    MAV.MAV_SEVERITY_CRITICAL,
-                )
-                return refused
+                self.statustext(p.disarm_flying_text, MAV.MAV_SEVERITY_CRITICAL)
+                return p.arm_refused
             self.armed = False
             self.target = None
             return MAV.MAV_RESULT_ACCEPTED
@@ -884,54 +787,30 @@ class MockAutopilot:
         if self.arming_refusal is not None:
             reason = self.arming_refusal
         elif not self.ready:
-            reason = "Need Position Estimate" if self.personality == "ardupilot" else "Global position required"
+            reason = p.not_ready_reason
         elif not self.fence.allows(self.lat, self.lon):
-            reason = "vehicle outside fence" if self.personality == "ardupilot" else "Geofence violation"
-        elif self.personality == "ardupilot" and self.mode_name not in _COPTER_ARMABLE:
+            reason = p.outside_fence_reason
+        elif p.armable_modes is not None and self.mode_name not in p.armable_modes:
             self.statustext("Arm: Mode not armable", MAV.MAV_SEVERITY_CRITICAL)
-            return refused
+            return p.arm_refused
         if reason is not None and not force:
-            self.statustext(f"{prefix}: {reason}", MAV.MAV_SEVERITY_CRITICAL)
-            return refused
+            self.statustext(f"{p.arm_prefix}: {reason}", MAV.MAV_SEVERITY_CRITICAL)
+            return p.arm_refused
         self.armed = True
-        return MAV.MAV_RESULT_ACCEPTED
-
-    def _takeoff(self, alt_param: float) -> int:
-        if self.personality == "ardupilot":
-            # ArduCopter: GUIDED (or AUTO), armed, on the ground; param7 is metres above home
-            if self.mode_name != "GUIDED" or not self.armed or self.rel_alt > 0.05:
-                return MAV.MAV_RESULT_FAILED
-            if not math.isfinite(alt_param) or alt_param <= 0:
-                return MAV.MAV_RESULT_FAILED
-            self.target = (self.lat, self.lon, float(alt_param))
-            return MAV.MAV_RESULT_ACCEPTED
-        # PX4: param7 is AMSL (NaN: MIS_TAKEOFF_ALT above home); switches to AUTO.TAKEOFF
-        if not self.armed:
-            return MAV.MAV_RESULT_TEMPORARILY_REJECTED
-        rel = self.params["MIS_TAKEOFF_ALT"] if not math.isfinite(alt_param) else alt_param - self.home[2]
-        if rel <= 0:
-            return MAV.MAV_RESULT_DENIED
-        self.custom_mode = px4_encode(*PX4_MODES["TAKEOFF"])
-        self.target = (self.lat, self.lon, float(rel))
         return MAV.MAV_RESULT_ACCEPTED
 
     def _reposition(self, p: list[float], frame: int) -> int:
         if not self.armed or self.rel_alt <= 0.05:
-            return MAV.MAV_RESULT_DENIED if self.personality == "px4" else MAV.MAV_RESULT_FAILED
+            return self.personality.reposition_refused
         lat = from_deg_e7(int(p[4])) if p[4] else self.lat
         lon = from_deg_e7(int(p[5])) if p[5] else self.lon
         alt = self._relative_alt(p[6], frame) if math.isfinite(p[6]) else self.rel_alt
         if not self.fence.allows(lat, lon):
             self.fence.refused += 1
-            if self.personality == "ardupilot":
-                return MAV.MAV_RESULT_FAILED  # ArduCopter: the guided destination is refused
-            # PX4: the commander acks, the navigator holds and says why
-            self._set_mode_name("HOLD")
-            self.statustext("Reposition is outside geofence", MAV.MAV_SEVERITY_CRITICAL)
-            return MAV.MAV_RESULT_ACCEPTED
+            return self.personality.reposition_outside_fence(self)
         if p[0] > 0:
             self.speed = p[0]
-        self._set_mode_name("HOLD" if self.personality == "px4" else "GUIDED")
+        self._set_mode_name(self.personality.autopilot.command_mode)
         self.target = (lat, lon, alt)
         return MAV.MAV_RESULT_ACCEPTED
 
@@ -944,8 +823,7 @@ class MockAutopilot:
         self.last_setpoint = time.monotonic()
         if msg.type_mask & 0b111:  # position ignored: velocity/acceleration targets not modelled
             return
-        mode = self.mode_name
-        if not self.armed or self.rel_alt <= 0.05 or mode not in ("GUIDED", "OFFBOARD"):
+        if not self.armed or self.rel_alt <= 0.05 or self.mode_name not in self.personality.setpoint_modes:
             return  # ArduCopter ignores position targets outside GUIDED; PX4 outside OFFBOARD
         self._fenced_target(
             from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int), self._relative_alt(msg.alt, msg.coordinate_frame)
@@ -962,7 +840,7 @@ class MockAutopilot:
 
     def _local_target(self, msg: Any) -> None:
         self.last_setpoint = time.monotonic()
-        if msg.type_mask & 0b111 or self.mode_name not in ("GUIDED", "OFFBOARD") or not self.armed:
+        if msg.type_mask & 0b111 or self.mode_name not in self.personality.setpoint_modes or not self.armed:
             return
         lat, lon = offset_m(self.home[0], self.home[1], msg.x, msg.y)
         self._fenced_target(lat, lon, -msg.z)

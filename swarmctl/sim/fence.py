@@ -11,11 +11,11 @@ last item sent again after the transfer is acknowledged again (its ACK was lost)
 removes the fence, MISSION_REQUEST_LIST / MISSION_REQUEST_INT download it. Only inclusion polygon
 vertices (MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION) are taken; other fence items are UNSUPPORTED.
 
-The stored fence survives reboots, like the autopilots' own storage. It is enforced when it is on:
-ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0 off; not saved, so off again after a
-reboot); PX4 as soon as one is uploaded (its GF_ACTION parameter is not 0). With several inclusion
-polygons ArduPilot keeps the vehicle inside all of them (its default FENCE_OPTIONS) and PX4 inside
-any one of them; points on the boundary count as inside.
+The stored fence survives reboots, like the autopilots' own storage. It is enforced when the mock's
+personality (personality.py) says it is on: ArduPilot after MAV_CMD_DO_FENCE_ENABLE (param1 1 on, 0
+off; not saved, so off again after a reboot); PX4 as soon as one is uploaded (its GF_ACTION parameter
+is not 0). With several inclusion polygons ArduPilot keeps the vehicle inside all of them (its default
+FENCE_OPTIONS) and PX4 inside any one of them; points on the boundary count as inside.
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ class MockFence:
         self.max_items = MAX_ITEMS
         self.items: list[Any] = []
         self.polygons: list[list[tuple[float, float]]] = []
-        self.enabled = False  # ArduPilot's DO_FENCE_ENABLE / FENCE_ENABLE
+        self.enabled = False  # the DO_FENCE_ENABLE switch (ArduPilot's; PX4 has none)
         self.refused = 0  # position targets refused because they lie outside the fence
         self.breaches = 0  # times the vehicle was found outside it in flight
         self.breached = False
@@ -92,16 +92,14 @@ class MockFence:
         """The fence is being enforced."""
         if not self.polygons:
             return False
-        if self.mock.personality == "px4":
-            return self.mock.params.get("GF_ACTION", 0.0) != 0.0
-        return self.enabled
+        return self.mock.personality.fence_enforced(self.enabled, self.mock.params)
 
     def allows(self, lat: float, lon: float) -> bool:
         """True unless an enforced fence keeps the vehicle from (lat, lon)."""
         if not self.active:
             return True
         inside = [bool(shapely.intersects_xy(s, lon, lat)) for s in self._shapes]
-        return all(inside) if self.mock.personality == "ardupilot" else any(inside)
+        return all(inside) if self.mock.personality.fence_inside_all else any(inside)
 
     def enable(self, param1: float) -> int:
         """MAV_CMD_DO_FENCE_ENABLE (ArduPilot): 1 on, 0 off, 2 (floor only off) leaves it as it is."""

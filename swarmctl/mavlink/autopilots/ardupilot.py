@@ -18,10 +18,11 @@ import time
 from typing import Any
 
 from swarmctl.geo.fence import farthest_metres
-from swarmctl.mavlink.codec import COPTER_MODE_NAMES, COPTER_MODES, from_deg_e7, to_deg_e7
+from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
+from swarmctl.mavlink.codec import from_deg_e7, to_deg_e7
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
 from swarmctl.mavlink.network import MAV, MavlinkLink
-from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ def fence_items(mav: Any, target_system: int, target_component: int, vertices: l
 class ArduPilotVehicle(Vehicle):
     """One ArduCopter (sysid) on a MavlinkLink that may carry other vehicles too."""
 
-    autopilot = "ardupilot"
+    autopilot_info = ARDUPILOT
 
     def __init__(
         self,
@@ -104,6 +105,11 @@ class ArduPilotVehicle(Vehicle):
         """A vehicle on its own link (use MavlinkLink + the constructor to share a link)."""
         link = await MavlinkLink(connection, signing_key=signing_key).open()
         return cls(link, sysid, owns_link=True, **kw)
+
+    def add_listener(self, callback: Any) -> bool:
+        """Every message of the link (which may carry other vehicles too) goes to callback(msg)."""
+        self.link.add_listener(callback)
+        return True
 
     # --- commands ------------------------------------------------------------------------------------
 
@@ -175,10 +181,9 @@ class ArduPilotVehicle(Vehicle):
 
     async def set_mode(self, mode: str, timeout: float = 3.0) -> None:
         name = mode.upper()
-        if name not in COPTER_MODES:
-            raise ValueError(f"unknown ArduCopter mode {mode!r}; known: {', '.join(COPTER_MODES)}")
-        number = COPTER_MODES[name]
-        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(number))
+        number = ARDUPILOT.custom_mode(name)  # ValueError naming the known modes
+        param2, param3 = ARDUPILOT.set_mode_params(name)
+        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), param2, param3)
         await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
 
     async def arm(self, timeout: float = 30.0) -> None:
@@ -189,7 +194,7 @@ class ArduPilotVehicle(Vehicle):
                 await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
                 break
             except CommandRejected as exc:
-                if exc.result not in ("FAILED", "TEMPORARILY_REJECTED") or time.monotonic() > deadline:
+                if not ARDUPILOT.retries_arm(exc.result) or time.monotonic() > deadline:
                     raise
                 log.info("%s: arming refused (%s), retrying", self.name, exc.reason or exc.result)
                 await asyncio.sleep(1.0)
@@ -198,7 +203,7 @@ class ArduPilotVehicle(Vehicle):
     async def disarm(self) -> None:
         await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
 
-    async def takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+    async def takeoff(self, rel_alt: float) -> None:
         try:
             await self._command(MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, float(rel_alt))
         except CommandRejected:
@@ -209,11 +214,11 @@ class ArduPilotVehicle(Vehicle):
             if not (self.armed and pos is not None and pos.rel_alt > 0.3):
                 raise
 
-    async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
+    async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
         start = time.monotonic()
         left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
         await self.wait_ready(left())
-        await self.set_mode("GUIDED")
+        await self.set_mode(ARDUPILOT.command_mode)
         await self.arm(min(30.0, left()))
         await self.takeoff(rel_alt)
         pos = self.position
@@ -225,7 +230,7 @@ class ArduPilotVehicle(Vehicle):
             f"take-off altitude {rel_alt:g} m",
         )
 
-    async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+    async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         self.target = Target(lat, lon, rel_alt)
         self._send_target()
 
@@ -259,7 +264,7 @@ class ArduPilotVehicle(Vehicle):
         # A lost SET_POSITION_TARGET has no ack: resend it once a second while waiting in GUIDED.
         if (
             self.target is not None
-            and self.mode == "GUIDED"
+            and self.mode == ARDUPILOT.command_mode
             and self._target_sent
             and time.monotonic() - self._target_sent > 1.0
         ):
@@ -276,7 +281,7 @@ class ArduPilotVehicle(Vehicle):
     async def resume(self) -> None:
         self.target = None  # GUIDED with no target holds position
         self._target_sent = 0.0
-        await self.set_mode("GUIDED")
+        await self.set_mode(ARDUPILOT.command_mode)
 
     async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
         """Upload polygon as the inclusion fence (mission protocol, mission_type FENCE), then switch the
@@ -426,7 +431,7 @@ class ArduPilotVehicle(Vehicle):
     @property
     def mode(self) -> str:
         cm = self._custom_mode()
-        return "UNKNOWN" if cm is None else COPTER_MODE_NAMES.get(cm, f"MODE{cm}")
+        return "UNKNOWN" if cm is None else ARDUPILOT.mode_name(cm)
 
     @property
     def lost(self) -> bool:

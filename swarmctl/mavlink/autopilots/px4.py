@@ -7,7 +7,8 @@ Every PX4/MAVSDK quirk the controller depends on lives here:
 - Health may never report "armable" (seen on simulators), so arming is retried instead of waiting for it.
 - Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`), and goto takes an AMSL
   altitude: home AMSL + the wanted height above home.
-- MAVSDK's Python binding exposes no MAVLink signing: sign at a router (mavlink-router) if needed.
+- MAVSDK's Python binding exposes no MAVLink signing (descriptions.PX4.signing): sign at a router
+  (mavlink-router) if needed.
 - A geofence goes up with MAVSDK's geofence plugin (the mission protocol, mission_type FENCE). PX4 has
   no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None).
 """
@@ -20,16 +21,19 @@ import math
 import time
 from typing import Any
 
-from swarmctl.mavlink.codec import parse_connection
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout
+from swarmctl.mavlink.autopilots.descriptions import PX4
+from swarmctl.mavlink.codec import Endpoint, parse_connection
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout, WrongAutopilot
 from swarmctl.mavlink.network import cancel_tasks
-from swarmctl.mavlink.vehicle import DEFAULT_ALTITUDE_M, Home, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 _mavsdk_log_installed = False
 
-# MAVSDK flight-mode names -> the names swarmctl uses (codec.PX4_MODES)
+# MAVSDK flight-mode names -> the names swarmctl uses (descriptions.PX4_MODES)
 _MODE_NAMES = {"RETURN_TO_LAUNCH": "RTL"}
+# MAVSDK's autopilot types -> the autopilot names of swarmctl's descriptions
+_AUTOPILOT_NAMES = {"PX4": "px4", "ARDUPILOT": "ardupilot"}
 
 
 def _route_mavsdk_log() -> None:
@@ -58,18 +62,18 @@ def _route_mavsdk_log() -> None:
 class PX4Vehicle(Vehicle):
     """A PX4 multicopter driven through MAVSDK, behind the same interface as ArduPilotVehicle."""
 
-    autopilot = "px4"
+    autopilot_info = PX4
 
     def __init__(
         self,
-        connection: str,
+        connection: str | Endpoint,
         *,
         sysid: int | None = None,
         name: str | None = None,
         telemetry_rate_hz: float = 5.0,
         arm_retry_period: float = 0.5,
     ):
-        self.endpoint = parse_connection(connection)
+        self.endpoint = connection if isinstance(connection, Endpoint) else parse_connection(connection)
         self.sysid = sysid
         self.name = name or (f"vehicle {sysid}" if sysid else f"PX4 at {self.endpoint}")
         self.telemetry_rate_hz = telemetry_rate_hz
@@ -87,6 +91,7 @@ class PX4Vehicle(Vehicle):
         self._mode = "UNKNOWN"
         self._connected = False
         self._battery: int | None = None
+        self.reported_autopilot: str | None = None  # what MAVSDK identified: "px4", "ardupilot", "GENERIC"
 
     # --- connection --------------------------------------------------------------------------------
 
@@ -121,10 +126,14 @@ class PX4Vehicle(Vehicle):
         self.sysid = await system.get_system_id()
         # MAVSDK picks PX4 or ArduPilot behaviour (parameters, modes) once it has identified the
         # autopilot; calls made before then can silently go nowhere, so wait for that first.
-        while str(await system.autopilot_type()).rsplit(".", 1)[-1] == "UNKNOWN":
+        # (an IntEnum: its str() is the number, so compare names)
+        while (kind := (await system.autopilot_type()).name) == "UNKNOWN":
             if time.monotonic() > deadline:
                 raise WaitTimeout("MAVSDK to identify the autopilot", self.name, timeout)
             await asyncio.sleep(0.05)
+        self.reported_autopilot = _AUTOPILOT_NAMES.get(kind, kind)
+        if self.reported_autopilot != PX4.name:
+            raise WrongAutopilot(self.name, self.reported_autopilot, PX4.name)
         self.action, self.telemetry = ActionAsync(system), TelemetryAsync(system)
         self._connected = True
         follow = {
@@ -210,13 +219,13 @@ class PX4Vehicle(Vehicle):
                 await self._call("arm", self.action.arm)
                 break
             except CommandRejected as exc:
-                if time.monotonic() > deadline:
+                if not PX4.retries_arm(exc.result) or time.monotonic() > deadline:
                     raise
                 log.info("%s: arming refused (%s), retrying", self.name, exc.result)
                 await asyncio.sleep(self.arm_retry_period)
         await self._poll(lambda: self._armed, 3.0, "the armed state")
 
-    async def arm_and_takeoff(self, rel_alt: float = DEFAULT_ALTITUDE_M, timeout: float = 120.0) -> None:
+    async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
         start = time.monotonic()
         left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
         await self.wait_ready(left())
@@ -235,7 +244,7 @@ class PX4Vehicle(Vehicle):
             f"take-off altitude {rel_alt:g} m",
         )
 
-    async def goto(self, lat: float, lon: float, rel_alt: float = DEFAULT_ALTITUDE_M) -> None:
+    async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         home = self._home
         if home is None:
             raise MavlinkError(f"{self.name}: no home position yet, cannot convert to AMSL")
@@ -251,7 +260,7 @@ class PX4Vehicle(Vehicle):
     async def resume(self) -> None:
         # Hold stops a return or a landing; PX4 then accepts repositions (goto) in flight
         self.target = None
-        await self.set_mode("HOLD")
+        await self.set_mode(PX4.command_mode)
 
     async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
         """Upload polygon as PX4's inclusion geofence (MAVSDK geofence plugin). PX4 enforces it as its
