@@ -421,14 +421,14 @@ def beliefs_from_knowledge(
                 hover[0, i, v] = p.on_target and v != k.vehicle_id
         hover[0, i, k.vehicle_id] = bool(hovering[i]) if hovering is not None else False
     explored = np.stack([k.explored for k in knowledges])[None]
-    phi = np.stack([np.where(k.explored, k.phi, np.float32(0.0)) for k in knowledges])[None]
+    phi_hat = np.stack([np.where(k.explored, k.phi, np.float32(1.0)) for k in knowledges])[None]
     obstacles = np.stack([k.explored & k.obstacle for k in knowledges])[None]
     targets = np.stack([k.known_targets() for k in knowledges])[None]
     me = np.array([[k.vehicle_id for k in knowledges]], dtype=np.int64)
     settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
     return Beliefs(
         explored,
-        phi,
+        phi_hat,
         obstacles,
         targets,
         positions,

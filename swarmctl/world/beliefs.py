@@ -16,7 +16,7 @@ trained with in its checkpoint, so the field observes exactly as the simulator d
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from functools import cached_property
 from typing import Any
 
@@ -48,58 +48,91 @@ class ObservationSettings:
         return cls(**kw, phi_tolerance=phi_tolerance)
 
 
-@dataclass(eq=False)
 class Beliefs:
     """B x U deciders' knowledge (see the module docstring for the axes).
 
-    explored (B, U, W, H) bool; phi (B, U, W, H) float32, the known value where explored, 0 elsewhere;
-    obstacles (B, U, W, H) bool, known obstacles (False where unexplored); targets (B, U, W, H) bool,
-    cells known to hold a target; positions (B, U, N, 2) int, where decider u believes vehicle n is
-    (-1, -1 when unknown; its own row is its own cell); hovering (B, U, N) bool, u believes n hovers on
-    a target (its own entry: it hovers); me (B, U) int, the decider's own index among the N vehicles;
-    episodes (B,) int, the batches' episode ids (policy draws are keyed by them and by `step`)."""
+    explored (B, U, W, H) bool; phi_hat (B, U, W, H) float32, the known value phi where explored and 1
+    elsewhere (the paper's optimism); obstacles (B, U, W, H) bool, known obstacles (False where
+    unexplored); targets (B, U, W, H) bool, cells known to hold a target; positions (B, U, N, 2) int,
+    where decider u believes vehicle n is (-1, -1 when unknown; its own row is its own cell); hovering
+    (B, U, N) bool, u believes n hovers on a target (its own entry: it hovers); me (B, U) int, the
+    decider's own index among the N vehicles; episodes (B,) int, the batches' episode ids (policy draws
+    are keyed by them and by `step`).
 
-    explored: np.ndarray
-    phi: np.ndarray
-    obstacles: np.ndarray
-    targets: np.ndarray
-    positions: np.ndarray
-    hovering: np.ndarray
-    me: np.ndarray
-    episodes: np.ndarray
-    step: int = 0
-    settings: ObservationSettings = field(default_factory=ObservationSettings)
+    The grid-sized fields (phi_hat, obstacles, targets) and `value` (the value channel without taken
+    targets removed, computed from the other fields when not given) may be zero-argument callables:
+    the simulator gives them so, and each is computed once, when a policy first reads it."""
 
-    def __post_init__(self) -> None:
-        self.explored = np.asarray(self.explored, dtype=bool)
+    FIELDS = ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me", "episodes", "step")
+    _MAPS = {"phi_hat": np.float32, "obstacles": bool, "targets": bool, "value": np.float32}
+
+    def __init__(
+        self,
+        explored,
+        phi_hat,
+        obstacles,
+        targets,
+        positions,
+        hovering,
+        me,
+        episodes,
+        step: int = 0,
+        settings: ObservationSettings | None = None,
+        value=None,
+    ):
+        self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
-        self.phi = np.asarray(self.phi, dtype=np.float32)
-        self.obstacles = np.asarray(self.obstacles, dtype=bool)
-        self.targets = np.asarray(self.targets, dtype=bool)
-        self.positions = np.asarray(self.positions, dtype=np.int64)
-        self.hovering = np.asarray(self.hovering, dtype=bool)
-        self.me = np.asarray(self.me, dtype=np.int64)
-        self.episodes = np.asarray(self.episodes, dtype=np.int64).reshape(b)
+        self._maps = {"phi_hat": phi_hat, "obstacles": obstacles, "targets": targets, "value": value}
+        for name, given in self._maps.items():
+            if given is not None and not callable(given):
+                self._map(name)  # check it now
+        self.positions = np.asarray(positions, dtype=np.int64)
+        self.hovering = np.asarray(hovering, dtype=bool)
+        self.me = np.asarray(me, dtype=np.int64)
+        self.episodes = np.asarray(episodes, dtype=np.int64).reshape(b)
+        self.step = int(step)
+        self.settings = settings or ObservationSettings()
         n = self.positions.shape[2] if self.positions.ndim == 4 else -1
         for name, arr, shape in (
-            ("phi", self.phi, (b, u, w, h)),
-            ("obstacles", self.obstacles, (b, u, w, h)),
-            ("targets", self.targets, (b, u, w, h)),
             ("positions", self.positions, (b, u, n, 2)),
             ("hovering", self.hovering, (b, u, n)),
             ("me", self.me, (b, u)),
         ):
             if arr.shape != shape:
                 raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {shape}")
-        if ((self.me < 0) | (self.me >= n)).any():
+        if n < 1 or self.me.min(initial=0) < 0 or self.me.max(initial=0) >= n:
             raise ValueError(f"beliefs: a decider's own index is outside the {n} vehicles")
-        own = self.pos
-        if ((own < 0) | (own >= (w, h))).any():
-            raise ValueError("beliefs: every decider must know its own cell, on the grid")
-        known = self.positions[..., 0] >= 0
-        cells = self.positions[known]
-        if cells.size and ((cells < 0) | (cells >= (w, h))).any():
+        x, y = self.positions[..., 0], self.positions[..., 1]
+        if x.size and (min(x.min(), y.min()) < -1 or x.max() >= w or y.max() >= h):
             raise ValueError("beliefs: a known position lies outside the grid")
+        if self.pos.min(initial=0) < 0:
+            raise ValueError("beliefs: every decider must know its own cell")
+
+    def _map(self, name: str) -> np.ndarray:
+        """A grid-sized field, computed (once) if it was given as a callable, and checked."""
+        given = self._maps[name]
+        if callable(given):
+            given = given()
+        arr = np.asarray(given, dtype=self._MAPS[name])
+        if arr.shape != self.explored.shape:
+            raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {self.explored.shape}")
+        self._maps[name] = arr
+        return arr
+
+    @property
+    def phi_hat(self) -> np.ndarray:
+        """(B, U, W, H) float32: the known phi where explored, 1 elsewhere. Shared: do not modify it."""
+        return self._map("phi_hat")
+
+    @property
+    def obstacles(self) -> np.ndarray:
+        """(B, U, W, H) bool: the obstacles the decider knows of."""
+        return self._map("obstacles")
+
+    @property
+    def targets(self) -> np.ndarray:
+        """(B, U, W, H) bool: the cells the decider knows to hold a target."""
+        return self._map("targets")
 
     # --- sizes --------------------------------------------------------------------------------------
     @property
@@ -173,28 +206,26 @@ class Beliefs:
         """(B, U, W, H) bool: known targets on which the decider believes another vehicle is."""
         return self.targets & (self.others_count > 0)
 
-    def phi_hat(self) -> np.ndarray:
-        """(B, U, W, H) float32: the known phi, 1 on unexplored cells (the paper's optimism)."""
-        return np.where(self.explored, self.phi, np.float32(1.0))
-
     def phi_without_taken(self) -> np.ndarray:
         """phi_hat with the taken targets removed (swarmctl.world.taken), as LA(n) sees it."""
         s = self.settings
-        phi_hat = self.phi_hat()
         if not self.taken.any():
-            return phi_hat
-        return remove_taken_targets(phi_hat, self.explored, self.taken, s.sigma2, s.phi_cutoff, s.phi_tolerance)
+            return self.phi_hat
+        return remove_taken_targets(self.phi_hat, self.explored, self.taken, s.sigma2, s.phi_cutoff, s.phi_tolerance)
 
     def value_channel(self, remove_taken: bool = False) -> np.ndarray:
         """phi_hat - rho * omega_hat per decider (B, U, W, H) float32: unexplored cells read 1; with
-        remove_taken the targets others sit on leave phi_hat first."""
-        rho = np.float32(self.settings.rho)
+        remove_taken the targets others sit on leave phi_hat first. The result may be shared: do not
+        modify it."""
         if remove_taken and self.taken.any():
-            phi = self.phi_without_taken()
-            return np.where(self.explored, phi - rho * self.obstacles, np.float32(1.0)).astype(np.float32)
-        out = np.ones(self.explored.shape, dtype=np.float32)
-        np.copyto(out, self.phi - rho * self.obstacles, where=self.explored)
-        return out
+            base = self.phi_without_taken()
+        elif self._maps["value"] is not None:
+            return self._map("value")
+        else:
+            base = self.phi_hat
+        if self.obstacles.any():
+            return base - np.float32(self.settings.rho) * self.obstacles
+        return base
 
     def last_searching(self) -> np.ndarray:
         """(B, U) bool: the decider is the one vehicle not hovering on a target, by what it knows of the
@@ -204,26 +235,31 @@ class Beliefs:
         return ~self.hovering_self & all_hover & (self.vehicles > 1)
 
     def shared(self) -> np.ndarray:
-        """(B,) bool: every decider of the batch holds the same map and the same picture of the swarm
-        (ideal sharing): per-vehicle planning may then be done once for the batch."""
+        """(B,) bool: every decider of the batch holds the same maps as planners read them (explored
+        cells, obstacles, targets) and the same picture of the swarm (ideal sharing): planning for the
+        swarm may then be done once for the batch."""
         same = np.ones(self.batch, dtype=bool)
         for arr in (self.explored, self.obstacles, self.targets, self.positions, self.hovering):
             same &= (arr == arr[:, :1]).reshape(self.batch, -1).all(1)
-        same &= (self.phi == self.phi[:, :1]).reshape(self.batch, -1).all(1)
         return same
 
     def select(self, batches: np.ndarray) -> Beliefs:
         """The beliefs of some batches only (`batches`: bool mask or indices over B)."""
         idx = np.flatnonzero(batches) if np.asarray(batches).dtype == bool else np.asarray(batches)
+
+        def part(name: str):
+            return None if self._maps[name] is None else (lambda: self._map(name)[idx])
+
         return Beliefs(
             self.explored[idx],
-            self.phi[idx],
-            self.obstacles[idx],
-            self.targets[idx],
+            part("phi_hat"),
+            part("obstacles"),
+            part("targets"),
             self.positions[idx],
             self.hovering[idx],
             self.me[idx],
             self.episodes[idx],
             self.step,
             self.settings,
+            part("value"),
         )

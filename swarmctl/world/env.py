@@ -95,10 +95,15 @@ class SearchEnv:
         bi = np.repeat(np.arange(b), self.targets.shape[1])
         self.target_mask[bi, self.targets[..., 0].ravel(), self.targets[..., 1].ravel()] = True
         self.phi = value_map(self.targets, self.width, self.height, self.cfg.sigma2, self.cfg.phi_cutoff)
+        self._seen_value = (self.phi - np.float32(self.cfg.rho) * self.obstacles).astype(np.float32)  # explored cells
         self._disc_table = _disc_table(self.width, self.height, self._offsets)
         self.explored = np.zeros((b, self.uavs, self.width, self.height), dtype=bool)
         self.known_pos = np.full((b, self.uavs, self.uavs, 2), -1, dtype=np.int64)
         self.known_hover = np.zeros((b, self.uavs, self.uavs), dtype=bool)  # [b, v, u]: v believes u hovers
+        self._lower = np.tri(self.uavs, k=-1, dtype=bool)[None]  # [u, v]: v < u
+        self._hover = self._hovering()
+        self._decider_ids = np.broadcast_to(np.arange(self.uavs), (b, self.uavs))
+        self._obstacle_free = not self.obstacles.any()
         self.t = 0
         self.done = np.zeros(b, dtype=bool)
         self.duration = np.zeros(b, dtype=np.int64)  # step of success, 0 while running
@@ -133,6 +138,7 @@ class SearchEnv:
         same = (dest[:, :, None, :] == dest[:, None, :, :]).all(-1)  # (B, U, U)
         collided = same.sum(-1) > 1
         on_target = self.target_mask[bi, dest[..., 0], dest[..., 1]]
+        self._hover = on_target & ~(same & self._lower).any(-1)
         reward = (-cfg.theta * (~valid) - cfg.psi * collided + (~collided & on_target)).astype(np.float32)
         success = on_target.all(1) & ~collided.any(1)
 
@@ -163,16 +169,18 @@ class SearchEnv:
         else:
             explored |= (delivered.astype(np.float32) @ sensed.astype(np.float32)) > 0
         self.known_pos = np.where(delivered[..., None], self.pos[:, None, :, :], self.known_pos)
-        self.known_hover = np.where(delivered, self.hovering_now()[:, None, :], self.known_hover)
+        self.known_hover = np.where(delivered, self._hover[:, None, :], self.known_hover)
 
     def hovering_now(self) -> np.ndarray:
         """(B, U) bool: the vehicle is on a target and no lower-numbered vehicle is on the same cell: it
         hovers there (the controller's HOVER state) and says so with its position."""
+        return self._hover.copy()
+
+    def _hovering(self) -> np.ndarray:
         bi = np.arange(self.batch)[:, None]
         on_target = self.target_mask[bi, self.pos[..., 0], self.pos[..., 1]]
         same = (self.pos[:, :, None, :] == self.pos[:, None, :, :]).all(-1)
-        lower_there = (same & np.tri(self.uavs, k=-1, dtype=bool)[None]).any(-1)
-        return on_target & ~lower_there
+        return on_target & ~(same & self._lower).any(-1)
 
     def _deliveries(self) -> np.ndarray:
         b, u = self.batch, self.uavs
@@ -185,22 +193,38 @@ class SearchEnv:
         lost = self.rng.random((b, u, u)) < self.channel.loss_probability(dist)
         return eye | ~lost
 
-    def beliefs(self) -> Beliefs:
-        """What each vehicle knows, as every policy reads it (B batches of U deciders, N = U vehicles)."""
-        explored = self.explored
-        phi = np.zeros(explored.shape, dtype=np.float32)
-        np.copyto(phi, self.phi[:, None], where=explored)
+    def beliefs(self, batches: np.ndarray | None = None) -> Beliefs:
+        """What each vehicle knows, as every policy reads it (B batches of U deciders, N = U vehicles);
+        `batches` (bool mask or indices) keeps some episodes only."""
+        rows = (
+            slice(None)
+            if batches is None
+            else (np.flatnonzero(batches) if np.asarray(batches).dtype == bool else np.asarray(batches))
+        )
+        explored = self.explored[rows]
+        phi, obstacles, seen = self.phi[rows], self.obstacles[rows], self._seen_value[rows]
+
+        def masked(source: np.ndarray) -> np.ndarray:  # truth where explored, 1 elsewhere
+            out = np.ones(explored.shape, dtype=np.float32)
+            np.copyto(out, source[:, None], where=explored)
+            return out
+
+        def known_obstacles() -> np.ndarray:
+            return np.broadcast_to(False, explored.shape) if self._obstacle_free else explored & obstacles[:, None]
+
+        targets = self.target_mask[rows]
         return Beliefs(
             explored,
-            phi,
-            explored & self.obstacles[:, None],
-            explored & self.target_mask[:, None],
-            self.known_pos,
-            self.known_hover,
-            np.broadcast_to(np.arange(self.uavs), (self.batch, self.uavs)),
-            self.episodes,
+            lambda: masked(phi),
+            known_obstacles,
+            lambda: explored & targets[:, None],
+            self.known_pos[rows],
+            self.known_hover[rows],
+            self._decider_ids[rows],
+            self.episodes[rows],
             self.t,
             self.settings,
+            value=lambda: masked(seen),
         )
 
     def observe(self, remove_taken: bool | None = None) -> np.ndarray:
