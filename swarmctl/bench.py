@@ -44,8 +44,8 @@ def la_decision_seconds(depth: int, seconds: float) -> float:
     env = SearchEnv(WorldConfig(), batch=1, observations=False)
     env.reset(seed=0)
     policy = LookAhead(depth)
-    policy.reset(env, np.random.default_rng(0))
-    elapsed, calls = _timed(lambda: policy.act(env), seconds)
+    policy.reset(env.beliefs(), 0)
+    elapsed, calls = _timed(lambda: policy.act(env.beliefs()), seconds)
     return elapsed / (calls * env.uavs)
 
 
@@ -67,8 +67,8 @@ def ddql_decision_seconds(batch_episodes: int, seconds: float, options: str = ""
         path = Path(tmp) / "untrained.pt"
         save_checkpoint(path, QNetwork(world.window), world.as_dict(), {}, {})
         policy = make_ddql_policy(f"ddql:{path}{options}")
-    policy.reset(env, np.random.default_rng(0))
-    elapsed, calls = _timed(lambda: policy.act(env), seconds)
+    policy.reset(env.beliefs(), 0)
+    elapsed, calls = _timed(lambda: policy.act(env.beliefs()), seconds)
     return elapsed / (calls * batch_episodes * env.uavs)
 
 

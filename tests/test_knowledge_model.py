@@ -175,7 +175,7 @@ def _env_and_knowledge(channel):
 @pytest.mark.parametrize("channel", ["ideal", "none"])
 def test_value_channel_and_observation_agree_with_the_simulator(channel):
     env, ks = _env_and_knowledge(channel)
-    sim_value = env.value_channel()[0]
+    sim_value = env.beliefs().value_channel()[0]
     sim_obs = env.observe()[0]
     for v, k in enumerate(ks):
         assert np.abs(k.value_channel(env.cfg.rho) - sim_value[v]).max() <= 0.5 / 255 + 1e-6

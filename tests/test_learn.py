@@ -12,8 +12,9 @@ from hypothesis import strategies as st
 from swarmctl.errors import InputError
 from swarmctl.learn.ddql import TrainConfig, train
 from swarmctl.learn.evaluate import evaluate
+from swarmctl.policy.base import softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
-from swarmctl.policy.ddql import make_ddql_policy, softmax_sample
+from swarmctl.policy.ddql import make_ddql_policy
 from swarmctl.policy.qnet import QNetwork, parameter_count
 from swarmctl.world import WorldConfig
 
@@ -39,13 +40,13 @@ def test_network_layers_and_parameter_count_match_the_paper():
 def test_softmax_with_tiny_tau_is_greedy(seed):
     rng = np.random.default_rng(seed)
     q = np.stack([rng.permutation(5) for _ in range(50)]) + rng.normal(size=(50, 5)) * 0.1  # gaps > 0.6
-    assert (softmax_sample(q, 1e-3, rng) == q.argmax(1)).all()
+    assert (softmax_sample(q, 1e-3, rng.random(50)) == q.argmax(1)).all()
 
 
 def test_softmax_sample_follows_the_distribution():
     rng = np.random.default_rng(0)
     q = np.tile([0.0, np.log(3.0), 0.0, 0.0, 0.0], (40_000, 1))
-    counts = np.bincount(softmax_sample(q, 1.0, rng), minlength=5) / 40_000
+    counts = np.bincount(softmax_sample(q, 1.0, rng.random(40_000)), minlength=5) / 40_000
     assert counts == pytest.approx([1 / 7, 3 / 7, 1 / 7, 1 / 7, 1 / 7], abs=0.01)
 
 
@@ -73,6 +74,41 @@ def test_checkpoint_round_trip_and_validation(tmp_path):
         load_checkpoint(plain)
     with pytest.raises(InputError, match="no such checkpoint"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_a_checkpoint_carries_its_weights_hash_and_damaged_or_non_finite_weights_are_refused(tmp_path):
+    from swarmctl.policy.checkpoint import weights_sha256
+
+    net = QNetwork(8)
+    path = tmp_path / "m.pt"
+    digest = save_checkpoint(path, net, TINY_WORLD.as_dict(), {}, {})
+    _, info = load_checkpoint(path)
+    assert info["version"] == 2 and info["weights_sha256"] == digest == weights_sha256(net.state_dict())
+    payload = torch.load(path, weights_only=True)
+    payload["state_dict"]["head.2.bias"][0] += 1.0  # one weight changed, the hash left as it was
+    torch.save(payload, tmp_path / "altered.pt")
+    with pytest.raises(InputError, match="do not match their sha256"):
+        load_checkpoint(tmp_path / "altered.pt")
+    payload["state_dict"]["head.2.bias"][0] = float("nan")
+    payload["weights_sha256"] = weights_sha256(payload["state_dict"])
+    torch.save(payload, tmp_path / "nan.pt")
+    with pytest.raises(InputError, match="NaN or infinite"):
+        load_checkpoint(tmp_path / "nan.pt")
+    raw = bytearray(path.read_bytes())  # bytes flipped in the middle of the file
+    raw[len(raw) // 2 : len(raw) // 2 + 64] = bytes(b ^ 0xFF for b in raw[len(raw) // 2 : len(raw) // 2 + 64])
+    (tmp_path / "flipped.pt").write_bytes(bytes(raw))
+    with pytest.raises(InputError):
+        load_checkpoint(tmp_path / "flipped.pt")
+
+
+def test_the_shipped_models_carry_no_paths_of_the_machine_that_trained_them():
+    import json
+
+    for path in sorted(Path("models").glob("*.pt")):
+        _, info = load_checkpoint(path)
+        text = json.dumps(info, default=str)
+        assert "/tmp" not in text and "/work" not in text and "/home" not in text and "runs/" not in text, path
+        assert info["version"] == 2
 
 
 @pytest.mark.parametrize(
@@ -138,7 +174,10 @@ def test_training_is_reproducible_and_transfer_starts_from_init(tmp_path):
     assert all(torch.equal(x, y) for x, y in zip(na.parameters(), nb.parameters()))
     c = tmp_path / "c.pt"
     meta = train(TINY_WORLD, tiny_config(8), seed=6, out=c, init=a, progress=False)
-    assert meta["init"] == str(a) and meta["init_metadata"]["seed"] == 5
+    _, info_a = load_checkpoint(a)
+    # the init model is named by file name and weights hash, never by a path of this machine
+    assert meta["init"] == {"file": "a.pt", "weights_sha256": info_a["weights_sha256"]}
+    assert meta["init_metadata"]["seed"] == 5 and str(tmp_path) not in repr(load_checkpoint(c)[1])
 
 
 def test_ddql_options_parse_in_any_order(tiny_model):
@@ -205,7 +244,6 @@ def test_training_under_the_rules_hovers_and_never_leaves_the_map(monkeypatch, t
     from dataclasses import replace
 
     import swarmctl.learn.ddql as ddql
-    from swarmctl.policy.base import hovering
     from swarmctl.world.moves import MOVES, STAY
 
     calls = []
@@ -215,7 +253,7 @@ def test_training_under_the_rules_hovers_and_never_leaves_the_map(monkeypatch, t
         mask = real_mask(env)
         calls.append(
             {
-                "hover": hovering(env).ravel().copy(),
+                "hover": env.beliefs().hovering_self.ravel().copy(),
                 "pos": env.pos.reshape(-1, 2).copy(),
                 "size": (env.width, env.height),
             }
@@ -262,7 +300,6 @@ def _closer_to_the_unexplored(explored: np.ndarray, blocked: np.ndarray, cell, m
 
 
 def test_with_straggler_frontier_the_last_vehicle_searching_heads_for_the_unexplored(tiny_model):
-    from swarmctl.policy.ddql import last_searching
     from tests.helpers import make_env
 
     out, _ = tiny_model
@@ -270,22 +307,22 @@ def test_with_straggler_frontier_the_last_vehicle_searching_heads_for_the_unexpl
     scenario = dict(targets=[[1, 1], [3, 1], [11, 11]], starts=[[1, 1], [3, 1], [0, 6]], window=8)
     env = make_env(12, **scenario)
     policy = make_ddql_policy(f"ddql:{out}:straggler=frontier")
-    policy.reset(env, np.random.default_rng(0))
+    policy.reset(env.beliefs(), 0)
     for _ in range(6):
-        assert last_searching(env)[0].tolist() == [False, False, True]
-        moves = policy.act(env)
+        assert env.beliefs().last_searching()[0].tolist() == [False, False, True]
+        moves = policy.act(env.beliefs())
         assert moves[0, :2].tolist() == [0, 0]  # the hover
-        assert _closer_to_the_unexplored(env.explored[0, 2], env.known_obstacles()[0, 2], env.pos[0, 2], moves[0, 2])
+        assert _closer_to_the_unexplored(env.explored[0, 2], env.beliefs().blocked[0, 2], env.pos[0, 2], moves[0, 2])
         env.step(moves)
     # while two vehicles still search, every move is the network's, draw for draw
     one_hovers = dict(scenario, starts=[[1, 1], [5, 1], [0, 6]])
     plain, ours = (make_ddql_policy(f"ddql:{out}{opt}") for opt in ("", ":straggler=frontier"))
     a, b = make_env(12, **one_hovers), make_env(12, **one_hovers)
-    plain.reset(a, np.random.default_rng(3))
-    ours.reset(b, np.random.default_rng(3))
+    plain.reset(a.beliefs(), 3)
+    ours.reset(b.beliefs(), 3)
     for _ in range(5):
-        assert not last_searching(a).any()
-        ma, mb = plain.act(a), ours.act(b)
+        assert not a.beliefs().last_searching().any()
+        ma, mb = plain.act(a.beliefs()), ours.act(b.beliefs())
         assert (ma == mb).all()
         a.step(ma), b.step(mb)
 
@@ -300,10 +337,36 @@ def test_in_the_field_the_last_agent_searching_takes_the_frontier_move(tiny_mode
     kn.sense_truth(np.zeros((12, 12)), np.zeros((12, 12), dtype=bool))
     kn.merge_position(0, Position(3, (1, 1), on_target=True))
     kn.merge_position(1, Position(3, (3, 1), on_target=True))
-    policy = FieldPolicy(f"ddql:{out}:straggler=frontier", seed=0, window=8)
+    policy = FieldPolicy(f"ddql:{out}:straggler=frontier", seed=0)
+    assert policy.window == 8  # the observation settings come from the checkpoint
     for _ in range(10):
-        choice = policy.choose([kn])[0]
+        choice = policy.choose([kn], step=3)[0]
         assert choice.by == "frontier" and choice.q is not None
         assert _closer_to_the_unexplored(kn.explored, kn.obstacle, (0, 6), choice.move)
     kn.merge_position(1, Position(4, (4, 1)))  # vehicle 1 left its target: two search now
     assert policy.choose([kn])[0].by is None
+
+
+def test_the_field_observes_with_the_settings_the_model_was_trained_with(tmp_path):
+    """A model trained with fov 2, rho 0.3 and 8 x 8 windows is flown with exactly those: the field's
+    sensing radius, window and value channel come from its checkpoint, not from constants."""
+    from dataclasses import replace
+
+    from swarmctl.knowledge.model import Knowledge
+    from swarmctl.mission.decide import FieldPolicy
+
+    world = replace(TINY_WORLD, fov=2.0, rho=0.3)
+    out = tmp_path / "fov2.pt"
+    train(world, tiny_config(8), seed=1, out=out, progress=False)
+    policy = FieldPolicy(f"ddql:{out}", seed=0)
+    assert (policy.fov, policy.window, policy.settings.rho) == (2.0, 8, 0.3)
+    kn = Knowledge(6, 6, vehicle_id=0)
+    kn.set_position(0, (2, 2))
+    obstacle = np.zeros((6, 6), dtype=bool)
+    obstacle[3, 2] = True
+    sensed = kn.sense_truth(np.zeros((6, 6)), obstacle, fov=policy.fov)
+    assert sensed == 13  # the disc of radius 2: 13 cells
+    d = policy.policy.decide(kn.beliefs(settings=policy.settings))
+    assert d.obs.shape == (1, 1, 3, 8, 8)
+    assert d.obs[0, 0, 2, 3, 2] == pytest.approx(-0.3)  # the model's rho, not the paper's 0.2
+    assert FieldPolicy("frontier").fov == 3.0  # planners keep the paper's

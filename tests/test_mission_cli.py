@@ -163,7 +163,7 @@ def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_withou
 
 BAD = [
     (["demo", "--uavs", "0"], "--uavs 0"),
-    (["demo", "--policy", "lawnmower"], "lawnmower"),
+    (["demo", "--policy", "oracle"], "oracle"),
     (["demo", "--policy", "ddql:/nonexistent/model.pt"], "model.pt"),
     (["demo", "--speedup", "-1"], "--speedup"),
     (["demo", "--gcs", "udpin:0.0.0.0:14550"], "--gcs"),
@@ -179,8 +179,8 @@ def test_bad_input_is_one_line_and_exit_2(argv, needle, capsys):
 
 
 def test_bad_mission_files_exit_2(tmp_path, capsys):
-    assert main(["fly", str(small_mission(tmp_path, policy='"lawnmower"')), "--yes"]) == 2
-    assert "lawnmower" in capsys.readouterr().err
+    assert main(["fly", str(small_mission(tmp_path, policy='"oracle"')), "--yes"]) == 2
+    assert "oracle" in capsys.readouterr().err
     bad = small_mission(tmp_path)
     bad.write_text(bad.read_text() + '[knowledge]\nchannel = "udpin:0.0.0.0:14600"\n')
     assert main(["fly", str(bad), "--yes"]) == 2

@@ -45,37 +45,34 @@ def test_grid_distances_match_a_plain_bfs(seed, size, density):
     assert (grid_distances(passable[None], src)[0] == bfs(passable, start)).all()
 
 
-def rng():
-    return np.random.default_rng(0)
-
-
 def test_la_heads_for_the_unexplored_side_and_hovers_on_a_target():
     # the vehicle's west and south are explored and empty; unexplored cells lie east and north
     env = make_env(20, [[19, 19]], [[2, 2]])
     la = LookAhead(4)
-    la.reset(env, rng())
-    assert la.act(env)[0, 0] in (NORTH, EAST)
+    la.reset(env.beliefs(), 0)
+    assert la.act(env.beliefs())[0, 0] in (NORTH, EAST)
     env = make_env(20, [[5, 5], [15, 15]], [[5, 5], [0, 19]])
-    la.reset(env, rng())
-    assert la.act(env)[0, 0] == STAY
+    la.reset(env.beliefs(), 0)
+    assert la.act(env.beliefs())[0, 0] == STAY
 
 
 def test_la_eliminates_a_target_another_vehicle_hovers_on():
     # vehicle 1 hovers on target (6, 6); vehicle 0 at (6, 4) sees it and must not walk onto it
     env = make_env(12, [[6, 6], [11, 11]], [[6, 4], [6, 6]])
     la = LookAhead(2)
-    la.reset(env, rng())
-    value = la.value_maps(env)[0, 0]
-    assert value[6, 6] == 0.0 and value[6, 5] == 0.0  # the bump of an occupied target is gone
-    assert la.act(env)[0, 1] == STAY
+    la.reset(env.beliefs(), 0)
+    value = la.value_maps(env.beliefs())[0, 0]
+    assert value[6, 5] == 0.0  # the bump of an occupied target is gone
+    assert value[6, 6] == -np.inf  # and the hovering vehicle's cell is blocked: it stays, the guard keeps it
+    assert la.act(env.beliefs())[0, 1] == STAY
 
 
 def test_la_never_moves_into_a_known_obstacle_or_off_the_map():
     env = make_env(8, [[7, 7]], [[0, 0]], obstacles=[(1, 0), (0, 1)])
     la = LookAhead(3)
-    la.reset(env, rng())
+    la.reset(env.beliefs(), 0)
     for _ in range(20):
-        a = la.act(env)
+        a = la.act(env.beliefs())
         _, _, _, info = env.step(a)
         assert info.valid.all()
 
@@ -112,11 +109,11 @@ def test_lawnmower_lanes_sense_every_cell():
 def test_sweeping_planners_find_targets_on_an_open_map(policy):
     env = make_env(20, [[18, 18], [17, 2]], [[0, 0], [1, 0]])
     p = policy()
-    p.reset(env, rng())
+    p.reset(env.beliefs(), 0)
     for _ in range(120):
         if env.done[0]:
             break
-        env.step(p.act(env))
+        env.step(p.act(env.beliefs()))
     assert env.done[0]
 
 
@@ -137,3 +134,30 @@ def test_eval_metrics_are_consistent():
     assert len(cdf) == 40 and (np.diff(cdf) >= 0).all()
     assert cdf[-1] == pytest.approx(r["success_rate"])
     assert r["mean_steps"] >= r["oracle_mean_steps"]
+
+
+def test_eval_results_do_not_depend_on_the_chunk_size():
+    cfg = WorldConfig(uavs=3, targets=4, obstacles=0.1)
+    specs = ["la:2", "frontier", "lawnmower", "random"]
+    whole = evaluate(cfg, specs, 24, seed=3, steps=30, progress=False)
+    chunked = evaluate(cfg, specs, 24, seed=3, steps=30, chunk=5, progress=False)
+    for a, b in zip(whole, chunked):
+        assert a["steps_cdf"] == b["steps_cdf"] and a["collisions_per_episode"] == b["collisions_per_episode"], a[
+            "policy"
+        ]
+
+
+def test_frontier_keeps_searchers_out_of_a_hovering_vehicles_cell():
+    # vehicle 0 hovers on (5, 5); vehicle 1 two cells south of it, the only other known target far away
+    env = make_env(12, [[5, 5], [11, 11]], [[5, 5], [5, 3]])
+    b = env.beliefs()
+    assert b.hovering_self[0].tolist() == [True, False] and b.held[0, 1, 5, 5] and not b.held[0, 0, 5, 5]
+    p = FrontierPolicy()
+    p.reset(b, 0)
+    goals = p.goals(b)
+    assert goals[0, 0].tolist() == [5, 5] and goals[0, 1].tolist() != [5, 5]
+    for _ in range(15):
+        moves = p.act(env.beliefs())
+        assert moves[0, 0] == STAY
+        env.step(moves)
+        assert env.pos[0, 1].tolist() != [5, 5]

@@ -65,9 +65,10 @@ def _two_on_targets(remove_taken):
 def test_the_world_removes_a_target_from_the_others_observations_only_when_asked():
     kept = _two_on_targets(remove_taken=False)
     removed = _two_on_targets(remove_taken=True)
-    assert kept.value_channel()[0, 1, 2, 2] == 1.0
-    assert removed.value_channel()[0, 1, 2, 2] == 0.0  # the other target is unexplored: nothing left
-    assert removed.value_channel()[0, 0, 2, 2] == 1.0  # the vehicle on it still sees its own target
+    assert kept.beliefs().value_channel(remove_taken=False)[0, 1, 2, 2] == 1.0
+    removed_value = removed.beliefs().value_channel(remove_taken=True)
+    assert removed_value[0, 1, 2, 2] == 0.0  # the other target is unexplored: nothing left
+    assert removed_value[0, 0, 2, 2] == 1.0  # the vehicle on it still sees its own target
     assert np.array_equal(kept.observe(remove_taken=True), removed.observe())
 
 
@@ -95,7 +96,7 @@ def test_bad_ddql_options_are_named(spec, needle):
 
 
 def test_la_in_the_field_sees_what_la_in_the_simulator_sees():
-    from swarmctl.mission.decide import _KnowledgeWorld
+    from swarmctl.knowledge.model import beliefs_from_knowledge
     from swarmctl.policy.lookahead import LookAhead
 
     env = _two_on_targets(remove_taken=False)
@@ -105,42 +106,62 @@ def test_la_in_the_field_sees_what_la_in_the_simulator_sees():
     k.sense(np.stack([x, y], 1), env.phi[0, x, y], env.obstacles[0, x, y])
     k.merge_position(1, Position(2, (3, 3)))
     k.merge_position(0, Position(2, (2, 2), on_target=True))
-    la = LookAhead(4)
-    sim = la.value_maps(env)[0, 1]
-    field = la.value_maps(_KnowledgeWorld(k))[0, 0]
-    assert sim[2, 2] == 0.0  # the target vehicle 0 sits on is gone for vehicle 1
-    assert field[2, 2] == -np.inf  # and in the field, where the guard keeps others out, its cell is blocked
-    field[2, 2] = sim[2, 2]
+    sim = LookAhead.value_maps(env.beliefs())[0, 1]
+    field = LookAhead.value_maps(beliefs_from_knowledge([k], vehicles=2))[0, 0]
+    assert sim[2, 2] == field[2, 2] == -np.inf  # the cell vehicle 0 hovers on is blocked for vehicle 1
+    assert sim[1, 2] == 0.0  # and the target's bump is gone
     assert np.array_equal(np.isinf(sim), np.isinf(field))
     finite = np.isfinite(sim)
     assert np.abs(sim[finite] - field[finite]).max() <= 0.5 / 255 + 1e-6
 
 
-def test_allowed_moves_keep_a_vehicle_on_the_map_out_of_known_obstacles_and_still_only_on_a_target():
-    from swarmctl.policy.ddql import allowed_moves
+def _beliefs(pos, blocked, hovering):
+    """Hand-built beliefs: deciders at `pos` (B, U, 2), each knowing `blocked` (B, U, W, H) and only itself."""
+    from swarmctl.world.beliefs import Beliefs
 
-    pos = np.array([[[0, 0], [5, 5], [5, 5], [2, 2]]])  # (B=1, U=4, 2)
+    b, u = pos.shape[:2]
+    positions = np.full((b, u, u, 2), -1)
+    positions[:, np.arange(u), np.arange(u)] = pos
+    hover = np.zeros((b, u, u), dtype=bool)
+    hover[:, np.arange(u), np.arange(u)] = hovering
+    explored = np.ones(blocked.shape, dtype=bool)
+    return Beliefs(
+        explored,
+        np.zeros(blocked.shape, np.float32),
+        blocked,
+        np.zeros_like(blocked),
+        positions,
+        hover,
+        np.broadcast_to(np.arange(u), (b, u)),
+        np.zeros(b, dtype=np.int64),
+    )
+
+
+def test_allowed_moves_keep_a_vehicle_on_the_map_out_of_known_obstacles_and_still_only_on_a_target():
+    from swarmctl.policy.base import allowed_moves
+
+    pos = np.array([[[0, 0], [5, 5], [5, 6], [2, 2]]])  # (B=1, U=4, 2)
     blocked = np.zeros((1, 4, 8, 8), dtype=bool)
     blocked[0, 0, 1, 0] = True  # vehicle 0 knows an obstacle east of it
     blocked[0, 3, [1, 3, 2, 2], [2, 2, 1, 3]] = True  # vehicle 3 is boxed in
-    hover_here = np.array([[False, False, True, False]])
-    allowed = allowed_moves(pos, hover_here, blocked)
+    hovering = np.array([[False, False, True, False]])
+    allowed = allowed_moves(_beliefs(pos, blocked, hovering))
     # moves: stay, north (0, +1), east (+1, 0), south (0, -1), west (-1, 0)
     assert allowed[0, 0].tolist() == [False, True, False, False, False]
     assert allowed[0, 1].tolist() == [False, True, True, True, True]
     assert allowed[0, 2].tolist() == [True, False, False, False, False]
     assert allowed[0, 3].tolist() == [True, False, False, False, False]  # no move at all: it may stay
-    assert allowed_moves(pos, None, None).all()
+    assert allowed_moves(_beliefs(pos, blocked, hovering), hover=False, mask=False).all()
 
 
 @settings(max_examples=100, deadline=None)
 @given(st.integers(0, 2**31 - 1), st.sampled_from([None, 0.1, 1.0]))
 def test_choose_never_takes_a_move_that_is_not_allowed(seed, tau):
-    from swarmctl.policy.ddql import choose
+    from swarmctl.policy.base import choose
 
     rng = np.random.default_rng(seed)
     q = rng.normal(size=(4, 3, 5)).astype(np.float32) * 10
     allowed = rng.random((4, 3, 5)) < 0.5
     allowed[..., 0] |= ~allowed.any(-1)
-    moves = choose(q, allowed, tau, rng)
+    moves = choose(q, allowed, tau, rng.random((4, 3)))
     assert allowed[np.arange(4)[:, None], np.arange(3)[None], moves].all()

@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 
 from swarmctl.world import SearchEnv, WorldConfig
-from swarmctl.world.env import guard_refusals
 from swarmctl.world.moves import EAST, NORTH, SOUTH, STAY, WEST
 from tests.helpers import make_env
 
@@ -133,13 +132,6 @@ def test_observation_window_is_clamped_on_big_maps_and_padded_on_small_ones():
     assert o.shape == (3, 20, 20)
     assert o[0, 0, 0] == 1.0
     assert np.allclose(o[2, 6:, :], -0.2) and np.allclose(o[2, :, 6:], -0.2)
-
-
-def test_guard_refuses_moves_into_held_or_entered_cells():
-    pos = np.array([[[2, 2], [3, 2], [5, 5], [5, 7]]])
-    dest = np.array([[[3, 2], [4, 2], [5, 6], [5, 6]]])
-    refused = guard_refusals(pos, dest)
-    assert refused[0].tolist() == [True, False, True, True]
 
 
 def test_guarded_world_never_has_collisions():

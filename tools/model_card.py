@@ -14,6 +14,14 @@ from pathlib import Path
 from swarmctl.policy.checkpoint import load_checkpoint
 
 
+def _init_text(init) -> str:
+    """How the card names the model a run started from: its file name and weights hash."""
+    if not init:
+        return ""
+    digest = init.get("weights_sha256")
+    return f", initialised from {init['file']}" + (f" (weights sha256 {digest[:16]}...)" if digest else "")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path)
@@ -48,8 +56,8 @@ def main() -> None:
         f"- wall time: {meta['wall_time_s'] / 60:.1f} min on a 2-core x86_64 CPU (Python {platform.python_version()}, "
         f"torch {meta['torch']}, device {meta['device']}), {meta['samples_per_s']:.0f} samples/s, "
         "sharing the machine with other work",
-        f"- seed {meta['seed']}, git commit {meta['git_commit']}"
-        + (f", initialised from {meta['init']}" if meta.get("init") else ""),
+        f"- seed {meta['seed']}, git commit {meta['git_commit']}" + _init_text(meta.get("init")),
+        f"- weights sha256 {info['weights_sha256']}",
         "- hyperparameters: " + ", ".join(f"{k} = {v}" for k, v in train.items() if k != "extra"),
         "",
         f"Held-out evaluations during training ({train['eval_episodes']} episodes of at most "

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from swarmctl.world.observe import build_observations
+from swarmctl.world.beliefs import Beliefs, ObservationSettings
+from swarmctl.world.observe import observe
 from swarmctl.world.scenario import fov_offsets
-from swarmctl.world.taken import remove_taken_targets
 
 PHI_LEVELS = 255
 PHI_TOLERANCE = 0.5 / PHI_LEVELS + 1e-6  # how far a quantised phi may be from the exact one
@@ -198,40 +198,36 @@ class Knowledge:
         """Known positions of the other vehicles."""
         return {v: p for v, p in self.positions.items() if v != self.vehicle_id}
 
-    def taken_targets(self) -> np.ndarray:
-        """(W, H) bool: explored target cells (phi 1) on which another vehicle is known to be."""
-        taken = np.zeros_like(self.explored)
-        for p in self.peers.values():
-            if p.cell is not None and self.explored[p.cell] and self.phi_q[p.cell] == PHI_LEVELS:
-                taken[p.cell] = True
-        return taken
+    def known_targets(self) -> np.ndarray:
+        """(W, H) bool: cells known to hold a target (reported by a detection, or sensed with phi 1)."""
+        mask = self.explored & (self.phi_q == PHI_LEVELS)
+        for x, y in self.targets:
+            mask[x, y] = True
+        return mask
+
+    def beliefs(
+        self,
+        vehicles: int | None = None,
+        settings: ObservationSettings | None = None,
+        step: int = 0,
+        hovering: bool = False,
+    ) -> Beliefs:
+        """This vehicle's beliefs as a batch of one decider (see beliefs_from_knowledge)."""
+        return beliefs_from_knowledge([self], vehicles, settings, step, [hovering])
 
     def value_channel(
         self, rho: float = 0.2, remove_taken: bool = False, sigma2: float = 1.0, cutoff: float = 0.01
     ) -> np.ndarray:
-        """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (as SearchEnv.value_channel);
-        with remove_taken the targets others sit on are removed from phi_hat (world.taken)."""
-        phi = self.phi
-        if remove_taken:
-            phi_hat = np.where(self.explored, phi, np.float32(1.0))
-            phi = remove_taken_targets(phi_hat, self.explored, self.taken_targets(), sigma2, cutoff, PHI_TOLERANCE)
-        seen = (phi - np.float32(rho) * self.obstacle).astype(np.float32)
-        return np.where(self.explored, seen, np.float32(1.0)).astype(np.float32)
+        """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (the simulator's value
+        channel, from the same Beliefs); with remove_taken the targets others sit on are removed."""
+        s = ObservationSettings(rho=rho, sigma2=sigma2, phi_cutoff=cutoff, phi_tolerance=PHI_TOLERANCE)
+        return self.beliefs(settings=s).value_channel(remove_taken)[0, 0]
 
     def observation(self, window: int = 20, rho: float = 0.2, remove_taken: bool = False) -> np.ndarray:
-        """The (3, F, F) observation of this vehicle, built by world.observe.build_observations.
-
-        Peers whose position is unknown are left out; the own position must be known. remove_taken:
-        see value_channel."""
-        own = self.own_position
-        if own is None or own.cell is None:
-            raise ValueError(f"vehicle {self.vehicle_id} does not know its own cell yet: call set_position first")
-        others = [p.cell for v, p in sorted(self.peers.items()) if p.cell is not None]
-        cells = np.array([own.cell, *others], dtype=np.int64).reshape(1, -1, 2)
-        u = cells.shape[1]
-        value = np.broadcast_to(self.value_channel(rho, remove_taken), (1, u, self.width, self.height))
-        known = np.broadcast_to(cells[:, None, :, :], (1, u, u, 2)).copy()
-        return build_observations(np.ascontiguousarray(value), cells, known, window, rho)[0, 0]
+        """The (3, F, F) observation of this vehicle (swarmctl.world.observe, from its Beliefs). Peers
+        whose position is unknown are left out; the own position must be known."""
+        s = ObservationSettings(window=window, rho=rho, phi_tolerance=PHI_TOLERANCE)
+        return observe(self.beliefs(settings=s), remove_taken)[0, 0]
 
     # ----- own updates ------------------------------------------------------------------------------
     def set_position(self, step: int, cell: tuple[int, int], on_target: bool = False) -> None:
@@ -385,3 +381,60 @@ class Knowledge:
         old = self.positions.get(vehicle)
         if old is None or position.order() > old.order():
             self.positions[vehicle] = position
+
+
+def beliefs_from_knowledge(
+    knowledges: list[Knowledge],
+    vehicles: int | None = None,
+    settings: ObservationSettings | None = None,
+    step: int = 0,
+    hovering: list[bool] | None = None,
+    episode: int = 0,
+) -> Beliefs:
+    """The Beliefs of the agents whose Knowledge is given (one batch, one decider each), as the
+    simulator's SearchEnv.beliefs builds them from its arrays.
+
+    vehicles: the swarm's size N (default: enough for every vehicle id the knowledges name);
+    settings: the observation settings (default the paper's, with the quantised phi's tolerance);
+    hovering: whether each agent itself hovers on a target (default: none do: they are searching);
+    episode: the id that keys the policy's random draws with the step (a mission is episode 0).
+    Each agent must know its own cell."""
+    if not knowledges:
+        raise ValueError("beliefs need at least one agent's knowledge")
+    w, h = knowledges[0].width, knowledges[0].height
+    ids = {k.vehicle_id for k in knowledges} | {v for k in knowledges for v in k.positions}
+    n = max(ids) + 1 if vehicles is None else int(vehicles)
+    if max(ids) >= n:
+        raise ValueError(f"vehicle id {max(ids)} is outside a swarm of {n}")
+    a = len(knowledges)
+    positions = np.full((1, a, n, 2), -1, dtype=np.int64)
+    hover = np.zeros((1, a, n), dtype=bool)
+    for i, k in enumerate(knowledges):
+        if (k.width, k.height) != (w, h):
+            raise ValueError("beliefs of one batch share one grid")
+        own = k.own_position
+        if own is None or own.cell is None:
+            raise ValueError(f"vehicle {k.vehicle_id} does not know its own cell yet: call set_position first")
+        for v, p in k.positions.items():
+            if p.cell is not None:
+                positions[0, i, v] = p.cell
+                hover[0, i, v] = p.on_target and v != k.vehicle_id
+        hover[0, i, k.vehicle_id] = bool(hovering[i]) if hovering is not None else False
+    explored = np.stack([k.explored for k in knowledges])[None]
+    phi_hat = np.stack([np.where(k.explored, k.phi, np.float32(1.0)) for k in knowledges])[None]
+    obstacles = np.stack([k.explored & k.obstacle for k in knowledges])[None]
+    targets = np.stack([k.known_targets() for k in knowledges])[None]
+    me = np.array([[k.vehicle_id for k in knowledges]], dtype=np.int64)
+    settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
+    return Beliefs(
+        explored,
+        phi_hat,
+        obstacles,
+        targets,
+        positions,
+        hover,
+        me,
+        np.array([episode], dtype=np.int64),
+        int(step),
+        settings,
+    )

@@ -23,8 +23,8 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from swarmctl.learn.replay import ReplayMemory
-from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
-from swarmctl.policy.ddql import env_allowed_moves, softmax_sample
+from swarmctl.policy.base import allowed_moves, softmax_sample
+from swarmctl.policy.checkpoint import load_checkpoint, model_reference, save_checkpoint
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -78,18 +78,18 @@ def explore(
     if allowed is not None:
         q = np.where(allowed, q, -np.inf)
     if cfg.exploration == "softmax":
-        return softmax_sample(q, value, rng)
+        return softmax_sample(q, value, rng.random(q.shape[0]))
     greedy = q.argmax(axis=1)
     if allowed is None:
         random = rng.integers(0, q.shape[1], size=q.shape[0])
     else:  # uniform among the allowed moves
-        random = softmax_sample(np.where(allowed, 0.0, -np.inf), 1.0, rng)
+        random = softmax_sample(np.where(allowed, 0.0, -np.inf), 1.0, rng.random(q.shape[0]))
     return np.where(rng.random(q.shape[0]) < value, random, greedy)
 
 
 def rule_mask(env: SearchEnv) -> np.ndarray:
-    """(B * U, 5) bool: the moves the deployment rules allow (policy.ddql: hover and mask)."""
-    return env_allowed_moves(env).reshape(-1, 5)
+    """(B * U, 5) bool: the moves the deployment rules allow (policy.base.allowed_moves: hover and mask)."""
+    return allowed_moves(env.beliefs()).reshape(-1, 5)
 
 
 def git_commit() -> str:
@@ -132,7 +132,7 @@ def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: tor
             q = net(torch.from_numpy(obs.reshape(-1, *obs.shape[2:])).to(device)).cpu().numpy()
         if cfg.rules:
             q = np.where(rule_mask(env), q, -np.inf)
-        actions = softmax_sample(q, cfg.eval_tau, rng).reshape(env.batch, env.uavs)
+        actions = softmax_sample(q, cfg.eval_tau, rng.random(q.shape[0])).reshape(env.batch, env.uavs)
         obs, _, _, _ = env.step(actions)
     duration = np.where(env.done, env.duration, cfg.eval_steps)
     return {"success_rate": float(env.done.mean()), "mean_steps": float(duration.mean())}
@@ -227,7 +227,7 @@ def train(
             "samples_per_s": round(samples / max(wall, 1e-9), 1),
             "evals": evals,
             "final_eval": evals[-1] if evals else None,
-            "init": str(init) if init else None,
+            "init": model_reference(init, init_info) if init else None,
             "init_metadata": init_info["metadata"] if init_info else None,
             "torch": str(torch.__version__),
             "device": str(dev),

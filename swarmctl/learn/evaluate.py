@@ -1,7 +1,8 @@
 """Evaluation with the paper's metrics: success probability, episode duration, its CDF.
 
 All policies of one call see identical episodes: episode i depends only on (seed, i), and each
-policy's own randomness comes from a separate stream.
+policy's own randomness is keyed by (seed, episode, step, vehicle) (swarmctl.policy.draws), so the
+chunk size never changes a result. Policies decide only for the episodes still running.
 """
 
 from __future__ import annotations
@@ -17,10 +18,6 @@ from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
 
 DEFAULT_CHUNK = 250
-
-
-def policy_rng(seed: int, first_episode: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([int(seed), int(first_episode), 0xA11CE]))
 
 
 def _chunks(episodes: int, chunk: int):
@@ -55,14 +52,17 @@ def run_policy(
             successes.append(bound <= steps)
             bar.update(n)
             continue
-        policy.reset(env, policy_rng(seed, start))
+        policy.reset(env.beliefs(), seed)
         for _ in range(steps):
-            if env.done.all():
+            live = ~env.done
+            if not live.any():
                 break
+            actions = np.zeros((n, env.uavs), dtype=np.int64)  # finished episodes stay frozen anyway
             t0 = time.perf_counter()
-            actions = policy.act(env)
+            beliefs = env.beliefs()
+            actions[live] = policy.act(beliefs if live.all() else beliefs.select(live))
             act_seconds += time.perf_counter() - t0
-            decisions += int((~env.done).sum()) * env.uavs
+            decisions += int(live.sum()) * env.uavs
             env.step(actions)
         durations.append(np.where(env.done, env.duration, steps))
         successes.append(env.done.copy())

@@ -48,8 +48,8 @@ from swarmctl.mavlink.gcs import GcsForwarder
 from swarmctl.mission.config import VehicleSpec
 from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
-from swarmctl.mission.guard import SafetyGuard
 from swarmctl.mission.recorder import Recorder
+from swarmctl.world.guard import SafetyGuard
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 log = logging.getLogger(__name__)
@@ -655,7 +655,7 @@ class Controller:
         plan = self.plan
         searching = [a for a in self.agents if a.state == SEARCH]
         t = time.monotonic()
-        choices = self.policy.choose([a.knowledge for a in searching])
+        choices = self.policy.choose([a.knowledge for a in searching], self.step, len(plan.vehicles))
         self.decide_times.append(time.monotonic() - t)
         proposed = {
             a.index: (a.cell[0] + int(MOVES[c.move][0]), a.cell[1] + int(MOVES[c.move][1]))

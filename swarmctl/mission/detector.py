@@ -40,8 +40,6 @@ from swarmctl.knowledge.model import Delta, Detection, dequantise_phi
 
 log = logging.getLogger(__name__)
 
-FOV_CELLS = 3.0  # the sensing disc radius (cells), as in the simulator
-
 
 @dataclass
 class SensorReport:

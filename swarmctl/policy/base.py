@@ -1,12 +1,15 @@
-"""The interface every policy shares, learned or not.
+"""The interface every policy shares, learned or not, and the decision rules they apply.
 
-A policy acts for all vehicles of all episodes of a SearchEnv at once:
+A policy acts for every decider of a batch of beliefs at once (swarmctl.world.beliefs):
 
-    policy.reset(env, rng)      # at the start of a batch of episodes
-    actions = policy.act(env)   # (B, U) ints in 0..4, read from the vehicles' own knowledge
+    policy.reset(beliefs, seed)      # at the start of a batch of episodes (or of a mission)
+    moves = policy.act(beliefs)      # (B, U) ints in 0..4, one per decider
 
-Planners read only what the vehicles know (explored cells, known obstacles, where they believe the
-others are), never the hidden targets. The oracle is the exception: it is a computed bound.
+Beliefs hold only what the vehicles know (explored cells, known values, obstacles and targets,
+where they believe the others are); the simulator (SearchEnv.beliefs) and the controller
+(swarmctl.knowledge.model.beliefs_from_knowledge) build them the same way. The oracle is not a
+policy: it is a bound computed from the truth (swarmctl.policy.oracle). Random draws come from
+swarmctl.policy.draws, keyed by (seed, episode, step, vehicle), so a batch's size never changes them.
 """
 
 from __future__ import annotations
@@ -15,29 +18,54 @@ from typing import Protocol
 
 import numpy as np
 
-from swarmctl.world.env import SearchEnv
+from swarmctl.world.beliefs import Beliefs
+from swarmctl.world.moves import MOVES, STAY
 
 
 class Policy(Protocol):
     name: str
 
-    def reset(self, env: SearchEnv, rng: np.random.Generator) -> None: ...
+    def reset(self, beliefs: Beliefs, seed: int) -> None: ...
 
-    def act(self, env: SearchEnv) -> np.ndarray: ...
-
-
-def known_target_indices(env: SearchEnv) -> np.ndarray:
-    """(B, U, K) bool: vehicle u has explored target k (it reads phi = 1 there)."""
-    bi = np.arange(env.batch)[:, None, None]
-    ui = np.arange(env.uavs)[None, :, None]
-    return env.explored[bi, ui, env.targets[:, None, :, 0], env.targets[:, None, :, 1]]
+    def act(self, beliefs: Beliefs) -> np.ndarray: ...
 
 
-def hovering(env: SearchEnv) -> np.ndarray:
-    """(B, U) bool: the vehicle is on a target and no lower-numbered vehicle is on the same cell; such a
-    vehicle stays (LA(n) in the paper; the controller's HOVER state)."""
-    bi = np.arange(env.batch)[:, None]
-    on_target = env.target_mask[bi, env.pos[..., 0], env.pos[..., 1]]
-    same = (env.pos[:, :, None, :] == env.pos[:, None, :, :]).all(-1)
-    lower_there = (same & np.tri(env.uavs, k=-1, dtype=bool)[None]).any(-1)
-    return on_target & ~lower_there
+def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np.ndarray:
+    """(B, U, 5) bool: the moves the decision rules allow.
+
+    hover: a decider that hovers on a target may only stay, and any other may not stay. mask: no move
+    off the map or into a cell the decider knows to be blocked (an obstacle, or a vehicle hovering on
+    a target). A decider left with no move at all may stay."""
+    b, u = beliefs.batch, beliefs.deciders
+    allowed = np.ones((b, u, len(MOVES)), dtype=bool)
+    if mask:
+        w, h = beliefs.width, beliefs.height
+        dest = beliefs.pos[:, :, None, :] + MOVES[None, None]
+        inside = (dest[..., 0] >= 0) & (dest[..., 0] < w) & (dest[..., 1] >= 0) & (dest[..., 1] < h)
+        bi, ui = np.arange(b)[:, None, None], np.arange(u)[None, :, None]
+        hit = beliefs.blocked[bi, ui, np.clip(dest[..., 0], 0, w - 1), np.clip(dest[..., 1], 0, h - 1)]
+        allowed &= inside & ~hit
+    if hover:
+        here = beliefs.hovering_self
+        allowed[..., STAY] = here
+        allowed[here] = np.arange(len(MOVES)) == STAY
+    allowed[~allowed.any(-1), STAY] = True
+    return allowed
+
+
+def softmax_sample(q: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
+    """One action per row from softmax(q / tau); q is (N, A), u (N,) uniforms in [0, 1)."""
+    z = (q - q.max(axis=1, keepdims=True)) / tau
+    p = np.exp(z)
+    p /= p.sum(axis=1, keepdims=True)
+    return np.minimum((p.cumsum(axis=1) < np.asarray(u).reshape(-1, 1)).sum(axis=1), q.shape[1] - 1)
+
+
+def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, u: np.ndarray) -> np.ndarray:
+    """Moves (B, U) from Q-values (B, U, 5) among the allowed moves: softmax(Q / tau) sampled with the
+    uniforms u (B, U), or argmax when tau is None."""
+    b, n, a = q.shape
+    q = np.where(allowed, q, -np.inf)
+    if tau is None:
+        return q.argmax(axis=-1)
+    return softmax_sample(q.reshape(b * n, a), tau, np.asarray(u).reshape(-1)).reshape(b, n)

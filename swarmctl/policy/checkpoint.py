@@ -1,82 +1,159 @@
 """Checkpoints: the network's weights with their config and metadata, validated on load.
 
-A checkpoint is a torch file holding only plain data (loaded with `weights_only=True`):
-{"format": "swarmctl-ddql", "version": 1, "architecture": ..., "window": F, "n_actions": 5,
- "state_dict": ..., "world": WorldConfig fields, "train": TrainConfig fields, "metadata": {...}}.
+A checkpoint is a torch file holding only plain data (loaded with `weights_only=True`), format v2:
+
+    {"format": "swarmctl-ddql", "version": 2, "architecture": ..., "variant": observation variant,
+     "window": F, "n_actions": 5, "state_dict": ..., "weights_sha256": ..., "world": WorldConfig fields
+     (the observation settings the field flies it with come from here), "train": TrainConfig fields,
+     "metadata": {...}, "resume": None or the trainer's state to continue a run}
+
+`weights_sha256` is sha256 over the state dict's tensors in key order (for each: the key, dtype and
+shape as text, then the raw little-endian bytes); it is checked on load, so a flipped byte is caught,
+and it names an init model in another checkpoint's metadata (never a path of the machine that
+trained it). Version 1 files (no hash, no variant) still load as the paper's variant.
 """
 
 from __future__ import annotations
 
+import hashlib
+import math
 import pickle
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import torch
 
 from swarmctl.errors import InputError
 from swarmctl.policy.qnet import ARCHITECTURE, QNetwork
+from swarmctl.world.beliefs import PAPER_VARIANT
 
 FORMAT = "swarmctl-ddql"
-VERSION = 1
+VERSION = 2
+VARIANTS = (PAPER_VARIANT,)
 
 
-def save_checkpoint(path: str | Path, net: QNetwork, world: dict, train: dict, metadata: dict) -> None:
-    """Write the network and everything needed to reproduce and judge it."""
+def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
+    """The hash that names a network's weights (see the module docstring)."""
+    h = hashlib.sha256()
+    for key in state_dict:
+        t = state_dict[key].detach().cpu().contiguous()
+        h.update(f"{key}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().astype(t.numpy().dtype.newbyteorder("<"), copy=False).tobytes())
+    return h.hexdigest()
+
+
+def save_checkpoint(
+    path: str | Path, net: QNetwork, world: dict, train: dict, metadata: dict, resume: dict | None = None
+) -> str:
+    """Write the network and everything needed to reproduce and judge it; returns its weights hash."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
+    digest = weights_sha256(state)
     payload = {
         "format": FORMAT,
         "version": VERSION,
         "architecture": ARCHITECTURE,
+        "variant": PAPER_VARIANT,
         "window": net.window,
         "n_actions": 5,
-        "state_dict": {k: v.detach().cpu() for k, v in net.state_dict().items()},
+        "state_dict": state,
+        "weights_sha256": digest,
         "world": world,
         "train": train,
         "metadata": metadata,
+        "resume": resume,
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(payload, tmp)
     tmp.replace(path)
+    return digest
+
+
+def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
+    """How another checkpoint names this one (e.g. as its init model): file name and weights hash."""
+    return {"file": Path(path).name, "weights_sha256": info["weights_sha256"]}
 
 
 def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwork, dict]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
-    Raises InputError naming the file when it is missing, not a checkpoint, from another
-    architecture or version, or made for another observation size than `window`.
+    Raises InputError naming the file when it is missing, not a checkpoint, from another architecture,
+    variant or version, damaged (weights not matching their hash, NaN or infinite weights), or made
+    for another observation size than `window`.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such checkpoint file; train one with `swarmctl train ... --out {path}`")
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, zipfile.BadZipFile, RuntimeError, EOFError, ValueError, OSError) as exc:
+    except (
+        pickle.UnpicklingError,
+        zipfile.BadZipFile,
+        RuntimeError,
+        EOFError,
+        ValueError,
+        OSError,
+        KeyError,
+        TypeError,
+        AttributeError,
+    ):
         raise InputError(
-            f"{path}: not a swarmctl checkpoint (cannot be read as a torch file: {type(exc).__name__})"
+            f"{path}: not a swarmctl checkpoint (cannot be read as a torch file); "
+            "give a .pt file written by `swarmctl train`"
         ) from None
     if not isinstance(payload, dict) or payload.get("format") != FORMAT:
         raise InputError(f"{path}: not a swarmctl checkpoint (no '{FORMAT}' format marker)")
-    if payload.get("version") != VERSION:
-        raise InputError(f"{path}: checkpoint version {payload.get('version')} is not supported (expected {VERSION})")
+    version = payload.get("version")
+    if version not in (1, VERSION):
+        raise InputError(f"{path}: checkpoint version {version!r} is not supported (expected 1 or {VERSION})")
     if payload.get("architecture") != ARCHITECTURE:
         raise InputError(
             f"{path}: architecture {payload.get('architecture')!r} is not {ARCHITECTURE!r}; "
             "retrain with this version of swarmctl"
         )
+    payload.setdefault("variant", PAPER_VARIANT)
+    if payload["variant"] not in VARIANTS:
+        raise InputError(
+            f"{path}: observation variant {payload['variant']!r} is unknown to this version of "
+            f"swarmctl (known: {', '.join(VARIANTS)})"
+        )
     f = payload.get("window")
+    if not isinstance(f, int) or isinstance(f, bool) or not 8 <= f <= 256:
+        raise InputError(f"{path}: window {f!r} is not an observation size this network takes (8..256)")
     if window is not None and f != window:
         raise InputError(
             f"{path}: the model was trained for {f} x {f} observations, not {window} x {window}; "
             f"use --window {f} or a model trained for {window}"
         )
+    if not isinstance(payload.get("world"), dict):
+        raise InputError(f"{path}: the checkpoint has no world config; retrain with this version of swarmctl")
+    state = payload.get("state_dict")
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise InputError(f"{path}: the checkpoint holds no weights")
+    digest = weights_sha256(state)
+    if version >= 2 and payload.get("weights_sha256") != digest:
+        raise InputError(
+            f"{path}: the weights do not match their sha256 (the file is damaged or was altered); use an intact copy"
+        )
+    payload["weights_sha256"] = digest
+    for key, t in state.items():
+        if t.is_floating_point() and not bool(torch.isfinite(t).all()):
+            raise InputError(f"{path}: weight {key} holds NaN or infinite values; this model cannot fly")
     try:
-        net = QNetwork(window=int(f))
-        net.load_state_dict(payload["state_dict"])
+        net = QNetwork(window=f)
+        net.load_state_dict(state)
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
         raise InputError(
             f"{path}: weights do not fit the {ARCHITECTURE} network ({str(exc).splitlines()[0]})"
         ) from None
     net.eval()
     info = {k: v for k, v in payload.items() if k != "state_dict"}
+    for key in ("fov", "rho", "sigma2", "phi_cutoff"):
+        value = info["world"].get(key)
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
+        ):
+            raise InputError(f"{path}: world.{key} = {value!r} is not a finite number")
     return net, info

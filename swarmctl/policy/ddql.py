@@ -17,72 +17,41 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
   map, as its residual failure; `frontier` hands it to the frontier planner (nearest unexplored
   cell) until it finds a target (default network).
 
-`ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft.
+`ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft. The observation settings (window,
+rho, sigma2, ...) are the ones stored in the checkpoint's world config.
 """
 
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from swarmctl.errors import InputError
-from swarmctl.policy.base import hovering
+from swarmctl.policy.base import allowed_moves, choose
 from swarmctl.policy.checkpoint import load_checkpoint
+from swarmctl.policy.draws import SOFTMAX, Draws
 from swarmctl.policy.planners import FrontierPolicy
-from swarmctl.world.env import SearchEnv
-from swarmctl.world.moves import MOVES, STAY
+from swarmctl.world.beliefs import Beliefs, ObservationSettings
+from swarmctl.world.observe import observe
 
 
-def softmax_sample(q: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
-    """Sample one action per row from softmax(q / tau); q is (N, A)."""
-    z = (q - q.max(axis=1, keepdims=True)) / tau
-    p = np.exp(z)
-    p /= p.sum(axis=1, keepdims=True)
-    u = rng.random((q.shape[0], 1))
-    return np.minimum((p.cumsum(axis=1) < u).sum(axis=1), q.shape[1] - 1)
+@dataclass
+class Decision:
+    """What the network decided for a batch of beliefs: moves (B, U), the observations (B, U, 3, F, F)
+    and Q-values (B, U, 5) behind them, and which moves the frontier planner made (B, U) instead."""
 
-
-def allowed_moves(pos: np.ndarray, hover_here: np.ndarray | None, blocked: np.ndarray | None) -> np.ndarray:
-    """(B, U, 5) bool: the moves a vehicle may take.
-
-    pos: (B, U, 2) cells. hover_here: (B, U) bool or None; where given, a vehicle that should hover
-    may only stay and any other may not. blocked: (B, U, W, H) bool, the obstacles each vehicle knows
-    of, or None; where given, moves into them or off the map are refused. Stay is always left to a
-    vehicle with no move at all."""
-    b, u = pos.shape[:2]
-    allowed = np.ones((b, u, len(MOVES)), dtype=bool)
-    if blocked is not None:
-        w, h = blocked.shape[-2:]
-        dest = pos[:, :, None, :] + MOVES[None, None]
-        inside = (dest[..., 0] >= 0) & (dest[..., 0] < w) & (dest[..., 1] >= 0) & (dest[..., 1] < h)
-        bi, ui = np.arange(b)[:, None, None], np.arange(u)[None, :, None]
-        allowed &= inside & ~blocked[bi, ui, np.clip(dest[..., 0], 0, w - 1), np.clip(dest[..., 1], 0, h - 1)]
-    if hover_here is not None:
-        allowed[..., STAY] = hover_here
-        allowed[hover_here] = np.arange(len(MOVES)) == STAY
-    allowed[~allowed.any(-1), STAY] = True
-    return allowed
-
-
-def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, rng: np.random.Generator) -> np.ndarray:
-    """Moves (B, U) from Q-values (B, U, 5): softmax(Q / tau) sampling (argmax when tau is None) over
-    the allowed moves."""
-    b, u, a = q.shape
-    q = np.where(allowed, q, -np.inf)
-    if tau is None:
-        return q.argmax(axis=-1)
-    return softmax_sample(q.reshape(b * u, a), tau, rng).reshape(b, u)
-
-
-def env_allowed_moves(env: SearchEnv, hover: bool = True, mask: bool = True) -> np.ndarray:
-    """(B, U, 5) bool: the moves the decision rules allow in a simulated world (allowed_moves with the
-    world's hovering vehicles and each vehicle's known obstacles)."""
-    return allowed_moves(env.pos, hovering(env) if hover else None, env.known_obstacles() if mask else None)
+    moves: np.ndarray
+    obs: np.ndarray
+    q: np.ndarray
+    by_frontier: np.ndarray
 
 
 class DDQLPolicy:
+    """The shared Q-network with the decision rules its options ask for (module docstring)."""
+
     def __init__(
         self,
         path: str,
@@ -99,40 +68,52 @@ class DDQLPolicy:
         self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
-        self.rng = np.random.default_rng(0)
+        self.settings = ObservationSettings.from_world(self.info["world"])  # as it was trained
+        self.seed = 0
         self.frontier = FrontierPolicy()
 
-    def reset(self, env: SearchEnv, rng: np.random.Generator) -> None:
-        if env.cfg.window != self.net.window:
+    def check(self, beliefs: Beliefs) -> None:
+        """The beliefs must observe what the network takes (its window)."""
+        f = beliefs.settings.window
+        if f != self.net.window:
             raise InputError(
                 f"{self.path}: the model was trained for {self.net.window} x {self.net.window} "
-                f"observations, not {env.cfg.window} x {env.cfg.window}; use --window {self.net.window}"
+                f"observations, not {f} x {f}; use --window {self.net.window}"
             )
-        self.rng = rng
-        self.frontier.reset(env, rng.spawn(1)[0])  # its own stream: the network's draws stay as they were
+
+    def reset(self, beliefs: Beliefs, seed: int) -> None:
+        self.check(beliefs)
+        self.seed = int(seed)
+        self.frontier.reset(beliefs, seed)  # its own streams: the network's draws stay as they were
 
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         """Q-values (B, U, 5) for observations (B, U, 3, F, F)."""
         b, u = obs.shape[:2]
         with torch.inference_mode():
-            q = self.net(torch.from_numpy(obs.reshape(b * u, *obs.shape[2:])))
+            q = self.net(torch.from_numpy(np.ascontiguousarray(obs).reshape(b * u, *obs.shape[2:])))
         return q.numpy().reshape(b, u, -1)
 
-    def act(self, env: SearchEnv) -> np.ndarray:
-        obs = env.observe(self.remove_taken)  # its own observation: the world's setting may differ
-        allowed = env_allowed_moves(env, self.hover, self.mask)
-        moves = choose(self.q_values(obs), allowed, self.tau, self.rng)
+    def decide(self, beliefs: Beliefs) -> Decision:
+        obs = observe(beliefs, self.remove_taken)
+        q = self.q_values(obs)
+        u = Draws(self.seed, beliefs).deciders(SOFTMAX)
+        moves = choose(q, allowed_moves(beliefs, self.hover, self.mask), self.tau, u)
+        by = np.zeros(moves.shape, dtype=bool)
         if self.straggler_frontier:
-            last = last_searching(env)
-            if last.any():
-                moves = np.where(last, self.frontier.act(env), moves)
-        return moves
+            last = beliefs.last_searching()
+            batches = last.any(axis=1)
+            if batches.any():
+                frontier = self.frontier.act(beliefs.select(batches))
+                moves[batches] = np.where(last[batches], frontier, moves[batches])
+                by[batches] = last[batches]
+        return Decision(moves, obs, q, by)
 
+    def act(self, beliefs: Beliefs) -> np.ndarray:
+        return self.decide(beliefs).moves
 
-def last_searching(env: SearchEnv) -> np.ndarray:
-    """(B, U) bool: the vehicle is the only one not hovering on a target (the paper's straggler)."""
-    hover = hovering(env)
-    return ~hover & (hover.sum(axis=1, keepdims=True) == env.uavs - 1) & (env.uavs > 1)
+    def field_settings(self, phi_tolerance: float) -> ObservationSettings:
+        """The observation settings the field builds beliefs with: the model's own."""
+        return replace(self.settings, phi_tolerance=phi_tolerance)
 
 
 def split_options(rest: str) -> tuple[str, str]:

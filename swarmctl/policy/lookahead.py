@@ -4,8 +4,10 @@ Each vehicle, assuming the others stay still, scores every sequence of n moves (
 the sequence of phi_hat(cell) / xi(cell), xi = 1 + the others it believes are in the cell; a move off
 the map or into a known obstacle makes the sequence -inf. It plays the first move of the best
 sequence, ties broken at random. Once on a target it hovers (unless a lower-numbered vehicle is
-already there), and a target another vehicle hovers on is removed from its value map: explored cells
-whose value that target explains read the value of the nearest remaining known target instead.
+already there), and a target another vehicle sits on is removed from its value map: explored cells
+whose value that target explains read the value of the nearest remaining known target instead. The
+cells of vehicles known to hover on a target are blocked like obstacles: they stay there, and the
+controller's guard refuses every move into them.
 
 Speed: the scores only need the (2n+1)^2 patch around each vehicle, so all vehicles of all episodes
 are scored with one gather of shape (vehicles, 5^n, n) from precomputed patch indices.
@@ -18,10 +20,9 @@ import itertools
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from swarmctl.policy.base import hovering
-from swarmctl.world.env import SearchEnv
+from swarmctl.policy.draws import LOOKAHEAD, Draws
+from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
-from swarmctl.world.taken import remove_taken_targets
 
 
 class LookAhead:
@@ -33,32 +34,31 @@ class LookAhead:
         self.side = 2 * depth + 1
         self.patch_index = (offsets[..., 0] + depth) * self.side + (offsets[..., 1] + depth)  # (S, n)
         self.first_move = seqs[:, 0]
-        self.rng = np.random.default_rng(0)
+        self.seed = 0
 
-    def reset(self, env: SearchEnv, rng: np.random.Generator) -> None:
-        self.rng = rng
+    def reset(self, beliefs: Beliefs, seed: int) -> None:
+        self.seed = int(seed)
 
-    def value_maps(self, env: SearchEnv) -> np.ndarray:
-        """phi_hat / xi per vehicle with taken targets removed; -inf on known obstacles."""
-        value = env.known_value()
-        taken = env.taken_targets()
-        value = remove_taken_targets(value, env.explored, taken, env.cfg.sigma2, env.cfg.phi_cutoff, env.phi_tolerance)
-        value = value / (1.0 + env.others_count())
-        value[env.known_obstacles()] = -np.inf
+    @staticmethod
+    def value_maps(beliefs: Beliefs) -> np.ndarray:
+        """phi_hat / xi per decider with taken targets removed; -inf where the decider must not go."""
+        value = beliefs.phi_without_taken() / (1.0 + beliefs.others_count)
+        value[beliefs.explored & beliefs.blocked] = -np.inf
         return value
 
-    def act(self, env: SearchEnv) -> np.ndarray:
-        b, u, w, h = env.batch, env.uavs, env.width, env.height
+    def act(self, beliefs: Beliefs) -> np.ndarray:
+        b, u, w, h = beliefs.batch, beliefs.deciders, beliefs.width, beliefs.height
         n_veh, d = b * u, self.depth
-        value = self.value_maps(env).reshape(n_veh, w, h)
+        value = self.value_maps(beliefs).reshape(n_veh, w, h)
         padded = np.full((n_veh, w + 2 * d, h + 2 * d), -np.inf, dtype=np.float32)
         padded[:, d : d + w, d : d + h] = value
-        pos = env.pos.reshape(n_veh, 2)
+        pos = beliefs.pos.reshape(n_veh, 2)
         views = sliding_window_view(padded, (self.side, self.side), axis=(1, 2))
         patches = views[np.arange(n_veh), pos[:, 0], pos[:, 1]].reshape(n_veh, -1)
         scores = patches[:, self.patch_index].sum(axis=-1)  # (N, S)
         best = scores.max(axis=1, keepdims=True)
         ties = scores >= best - 1e-6
-        choice = np.argmax(ties * self.rng.random(scores.shape), axis=1)
+        draws = Draws(self.seed, beliefs).deciders(LOOKAHEAD, len(self.first_move)).reshape(n_veh, -1)
+        choice = np.argmax(ties * (draws + 1.0), axis=1)
         actions = self.first_move[choice].reshape(b, u)
-        return np.where(hovering(env), STAY, actions)
+        return np.where(beliefs.hovering_self, STAY, actions)

@@ -10,10 +10,13 @@ no target reward); a swap is not a collision; a vehicle on a target cell without
 +1. Success at step t: after the t-th joint move every vehicle is on a target and no two share a
 cell. With `stop_at_success` (test episodes) a successful episode freezes; training episodes run on.
 
-Each vehicle has its own knowledge (explored mask and where it believes the others are). After every
-move each vehicle senses the disc of radius zeta around itself and broadcasts what it sensed and its
-position; the channel decides which receivers get it (ideal: all, none: nobody, model/fixed: each
-message lost independently). A batch of one is what the controller uses.
+Each vehicle has its own knowledge (explored mask, where it believes the others are and whether they
+hover on a target). After every move each vehicle senses the disc of radius zeta around itself and
+broadcasts what it sensed, its position and whether it hovers; the channel decides which receivers
+get it (ideal: all, none: nobody, model/fixed: each message lost independently). Policies see only
+`beliefs()` (swarmctl.world.beliefs), never the hidden targets; `observe()` is the paper's observation
+built from them. With `cfg.guard` the safety guard (swarmctl.world.guard) turns refused moves into
+"stay" before they are applied, as the controller does.
 """
 
 from __future__ import annotations
@@ -23,12 +26,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmctl.errors import ScenarioError
+from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.channel import Channel
 from swarmctl.world.config import WorldConfig
+from swarmctl.world.guard import guard_moves
 from swarmctl.world.moves import MOVES, STAY
-from swarmctl.world.observe import build_observations
+from swarmctl.world.observe import observe
 from swarmctl.world.scenario import Scenario, fov_offsets, generate_scenario, value_map
-from swarmctl.world.taken import remove_taken_targets
 
 
 @dataclass
@@ -44,8 +48,6 @@ class StepInfo:
 class SearchEnv:
     """B parallel episodes of the paper's search world."""
 
-    phi_tolerance = 1e-6  # phi is exact here (the controller's Knowledge carries it quantised)
-
     def __init__(self, cfg: WorldConfig, batch: int = 1, stop_at_success: bool = True, observations: bool = True):
         if batch < 1:
             raise ScenarioError(f"batch {batch} must be >= 1")
@@ -54,6 +56,7 @@ class SearchEnv:
         self.stop_at_success = stop_at_success
         self.observations = observations
         self.channel = Channel(cfg.channel, cfg.cell_size, cfg.loss)
+        self.settings = ObservationSettings.from_world(cfg)  # phi is exact here (the field's is quantised)
         self._offsets = fov_offsets(cfg.fov)
         self._disc_table: np.ndarray | None = None
         self.width = self.height = cfg.map_size
@@ -73,13 +76,15 @@ class SearchEnv:
         if len(episodes) != self.batch:
             raise ScenarioError(f"reset got {len(episodes)} episode indices for a batch of {self.batch}")
         scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in episodes]
-        return self.reset_to(scenarios, seed=seed + 7_919 * (episodes[0] + 1))
+        return self.reset_to(scenarios, seed=seed + 7_919 * (episodes[0] + 1), episodes=episodes)
 
-    def reset_to(self, scenarios: list[Scenario], seed: int = 0) -> np.ndarray | None:
-        """Start from given scenarios (hand-built cases, real maps). All share one grid size."""
+    def reset_to(self, scenarios: list[Scenario], seed: int = 0, episodes=None) -> np.ndarray | None:
+        """Start from given scenarios (hand-built cases, real maps). All share one grid size.
+        `episodes`: their ids (default 0..B-1), which key the policies' random draws."""
         if len(scenarios) != self.batch:
             raise ScenarioError(f"reset_to got {len(scenarios)} scenarios for a batch of {self.batch}")
         self.scenarios = scenarios
+        self.episodes = np.arange(self.batch) if episodes is None else np.asarray(list(episodes), dtype=np.int64)
         self.width, self.height = scenarios[0].obstacles.shape
         b = self.batch
         self.targets = np.stack([s.targets for s in scenarios])  # (B, K, 2)
@@ -90,10 +95,15 @@ class SearchEnv:
         bi = np.repeat(np.arange(b), self.targets.shape[1])
         self.target_mask[bi, self.targets[..., 0].ravel(), self.targets[..., 1].ravel()] = True
         self.phi = value_map(self.targets, self.width, self.height, self.cfg.sigma2, self.cfg.phi_cutoff)
-        self._seen_value = (self.phi - self.cfg.rho * self.obstacles).astype(np.float32)
+        self._seen_value = (self.phi - np.float32(self.cfg.rho) * self.obstacles).astype(np.float32)  # explored cells
         self._disc_table = _disc_table(self.width, self.height, self._offsets)
         self.explored = np.zeros((b, self.uavs, self.width, self.height), dtype=bool)
         self.known_pos = np.full((b, self.uavs, self.uavs, 2), -1, dtype=np.int64)
+        self.known_hover = np.zeros((b, self.uavs, self.uavs), dtype=bool)  # [b, v, u]: v believes u hovers
+        self._lower = np.tri(self.uavs, k=-1, dtype=bool)[None]  # [u, v]: v < u
+        self._hover = self._hovering()
+        self._decider_ids = np.broadcast_to(np.arange(self.uavs), (b, self.uavs))
+        self._obstacle_free = not self.obstacles.any()
         self.t = 0
         self.done = np.zeros(b, dtype=bool)
         self.duration = np.zeros(b, dtype=np.int64)  # step of success, 0 while running
@@ -118,16 +128,17 @@ class SearchEnv:
         py = np.clip(prop[..., 1], 0, self.height - 1)
         bi = np.arange(self.batch)[:, None]
         valid = inside & ~self.obstacles[bi, px, py]
-        dest = np.where(valid[..., None], prop, self.pos)
         refused = np.zeros_like(valid)
         if cfg.guard:
-            refused = guard_refusals(self.pos, dest)
-            dest = np.where(refused[..., None], self.pos, dest)
+            prop, code = guard_moves(self.pos, prop, self.obstacles)
+            refused = code != 0
+        dest = np.where(valid[..., None], prop, self.pos)
         self.pos = dest
 
         same = (dest[:, :, None, :] == dest[:, None, :, :]).all(-1)  # (B, U, U)
         collided = same.sum(-1) > 1
         on_target = self.target_mask[bi, dest[..., 0], dest[..., 1]]
+        self._hover = on_target & ~(same & self._lower).any(-1)
         reward = (-cfg.theta * (~valid) - cfg.psi * collided + (~collided & on_target)).astype(np.float32)
         success = on_target.all(1) & ~collided.any(1)
 
@@ -158,6 +169,18 @@ class SearchEnv:
         else:
             explored |= (delivered.astype(np.float32) @ sensed.astype(np.float32)) > 0
         self.known_pos = np.where(delivered[..., None], self.pos[:, None, :, :], self.known_pos)
+        self.known_hover = np.where(delivered, self._hover[:, None, :], self.known_hover)
+
+    def hovering_now(self) -> np.ndarray:
+        """(B, U) bool: the vehicle is on a target and no lower-numbered vehicle is on the same cell: it
+        hovers there (the controller's HOVER state) and says so with its position."""
+        return self._hover.copy()
+
+    def _hovering(self) -> np.ndarray:
+        bi = np.arange(self.batch)[:, None]
+        on_target = self.target_mask[bi, self.pos[..., 0], self.pos[..., 1]]
+        same = (self.pos[:, :, None, :] == self.pos[:, None, :, :]).all(-1)
+        return on_target & ~(same & self._lower).any(-1)
 
     def _deliveries(self) -> np.ndarray:
         b, u = self.batch, self.uavs
@@ -170,47 +193,43 @@ class SearchEnv:
         lost = self.rng.random((b, u, u)) < self.channel.loss_probability(dist)
         return eye | ~lost
 
-    def known_value(self) -> np.ndarray:
-        """phi_hat per vehicle (B, U, W, H): true phi where explored, 1 elsewhere."""
-        return np.where(self.explored, self.phi[:, None], np.float32(1.0))
+    def beliefs(self, batches: np.ndarray | None = None) -> Beliefs:
+        """What each vehicle knows, as every policy reads it (B batches of U deciders, N = U vehicles);
+        `batches` (bool mask or indices) keeps some episodes only."""
+        rows = (
+            slice(None)
+            if batches is None
+            else (np.flatnonzero(batches) if np.asarray(batches).dtype == bool else np.asarray(batches))
+        )
+        explored = self.explored[rows]
+        phi, obstacles, seen = self.phi[rows], self.obstacles[rows], self._seen_value[rows]
 
-    def known_obstacles(self) -> np.ndarray:
-        """omega_hat per vehicle (B, U, W, H): obstacles the vehicle has explored."""
-        return self.explored & self.obstacles[:, None]
+        def masked(source: np.ndarray) -> np.ndarray:  # truth where explored, 1 elsewhere
+            out = np.ones(explored.shape, dtype=np.float32)
+            np.copyto(out, source[:, None], where=explored)
+            return out
 
-    def others_count(self) -> np.ndarray:
-        """(B, U, W, H) int: how many other vehicles each vehicle believes are on each cell."""
-        b, u, w, h = self.batch, self.uavs, self.width, self.height
-        kp = self.known_pos  # (B, V, U, 2)
-        valid = (kp[..., 0] >= 0) & ~np.eye(u, dtype=bool)[None]
-        bi, vi, _ = np.nonzero(valid)
-        flat = ((bi * u + vi) * w + kp[..., 0][valid]) * h + kp[..., 1][valid]
-        return np.bincount(flat, minlength=b * u * w * h).reshape(b, u, w, h)
+        def known_obstacles() -> np.ndarray:
+            return np.broadcast_to(False, explored.shape) if self._obstacle_free else explored & obstacles[:, None]
 
-    def taken_targets(self) -> np.ndarray:
-        """(B, U, W, H) bool: explored target cells on which the vehicle believes another vehicle is."""
-        return (self.others_count() > 0) & self.explored & self.target_mask[:, None]
-
-    def value_channel(self, remove_taken: bool | None = None) -> np.ndarray:
-        """phi_hat - rho * omega_hat per vehicle (B, U, W, H) float32; with remove_taken (default:
-        the world's setting) the targets others sit on are removed from phi_hat (world.taken)."""
-        out = np.ones(self.explored.shape, dtype=np.float32)
-        if remove_taken is None:
-            remove_taken = self.cfg.remove_taken
-        taken = self.taken_targets() if remove_taken else None
-        if taken is not None and taken.any():
-            phi = remove_taken_targets(self.known_value(), self.explored, taken, self.cfg.sigma2, self.cfg.phi_cutoff)
-            seen = phi - np.float32(self.cfg.rho) * self.obstacles[:, None]
-            np.copyto(out, seen, where=self.explored)
-        else:
-            np.copyto(out, self._seen_value[:, None], where=self.explored)
-        return out
+        targets = self.target_mask[rows]
+        return Beliefs(
+            explored,
+            lambda: masked(phi),
+            known_obstacles,
+            lambda: explored & targets[:, None],
+            self.known_pos[rows],
+            self.known_hover[rows],
+            self._decider_ids[rows],
+            self.episodes[rows],
+            self.t,
+            self.settings,
+            value=lambda: masked(seen),
+        )
 
     def observe(self, remove_taken: bool | None = None) -> np.ndarray:
-        """(B, U, 3, F, F) float32 observations for every vehicle."""
-        return build_observations(
-            self.value_channel(remove_taken), self.pos, self.known_pos, self.cfg.window, self.cfg.rho
-        )
+        """(B, U, 3, F, F) float32 observations for every vehicle (remove_taken: default the world's)."""
+        return observe(self.beliefs(), self.cfg.remove_taken if remove_taken is None else remove_taken)
 
 
 def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:
@@ -222,14 +241,3 @@ def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:
     inside = (cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)
     centre = (xs.ravel() * height + ys.ravel())[:, None]
     return np.where(inside, cx * height + cy, centre)
-
-
-def guard_refusals(pos: np.ndarray, dest: np.ndarray) -> np.ndarray:
-    """The controller's guard, vectorised: a move is refused when its destination is a cell another
-    vehicle holds or is moving to. pos, dest (B, U, 2) -> refused (B, U) bool (stays are never refused)."""
-    u = pos.shape[1]
-    moving = (dest != pos).any(-1)
-    other = ~np.eye(u, dtype=bool)
-    holds = ((dest[:, :, None, :] == pos[:, None, :, :]).all(-1) & other).any(-1)
-    enters = ((dest[:, :, None, :] == dest[:, None, :, :]).all(-1) & other).any(-1)
-    return moving & (holds | enters)

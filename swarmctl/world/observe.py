@@ -1,15 +1,20 @@
-"""The per-vehicle observation: 3 x F x F, one builder for simulator, planners and controller.
+"""The per-vehicle observation: 3 x F x F, one builder for the simulator and the controller.
 
 Channels: 0 own position (one-hot), 1 other vehicles (count per cell, as known to the vehicle),
 2 value: phi_hat - rho * omega_hat (unexplored cells read 1, explored cells phi - rho * obstacle).
 The window's lower corner is clip(x - F//2, 0, W - F) per axis; along an axis shorter than F the
 window starts at 0 and the cells beyond the map are padded as obstacles (value -rho).
+
+`observe(beliefs)` is what every caller uses: the simulator's SearchEnv.observe and the field's
+policies build Beliefs first (swarmctl.world.beliefs), so both see the same tensor.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
+
+from swarmctl.world.beliefs import Beliefs
 
 
 def window_corners(pos: np.ndarray, width: int, height: int, window: int) -> np.ndarray:
@@ -20,16 +25,23 @@ def window_corners(pos: np.ndarray, width: int, height: int, window: int) -> np.
     return np.stack([cx, cy], axis=-1)
 
 
-def build_observations(
-    value: np.ndarray, pos: np.ndarray, known_pos: np.ndarray, window: int, rho: float
-) -> np.ndarray:
-    """Observations for every vehicle.
+def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
+    """(B, U, 3, F, F) float32 observations of every decider (F = beliefs.settings.window); with
+    remove_taken the targets others sit on leave the value channel (swarmctl.world.taken)."""
+    s = beliefs.settings
+    return build_observations(
+        beliefs.value_channel(remove_taken), beliefs.pos, beliefs.positions, beliefs.others, s.window, s.rho
+    )
 
-    value: (B, U, W, H) float32, each vehicle's value channel (phi_hat - rho * omega_hat).
-    pos: (B, U, 2) own cells. known_pos: (B, U, U, 2), known_pos[b, v, u] is where vehicle v
-    believes vehicle u is (-1 when unknown); the diagonal is ignored.
-    Returns (B, U, 3, F, F) float32.
-    """
+
+def build_observations(
+    value: np.ndarray, pos: np.ndarray, positions: np.ndarray, others: np.ndarray, window: int, rho: float
+) -> np.ndarray:
+    """Observations from the arrays behind them.
+
+    value: (B, U, W, H) float32 value channels; pos: (B, U, 2) own cells; positions (B, U, N, 2): where
+    each decider believes each vehicle is; others (B, U, N) bool: which of them enter the vehicle
+    channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32."""
     b, u, w, h = value.shape
     f = window
     n = b * u
@@ -51,18 +63,8 @@ def build_observations(
     own = pos.reshape(n, 2) - corner
     obs[idx, 0, own[:, 0], own[:, 1]] = 1.0
 
-    # others: known_pos[b, v, j] for j != v, relative to v's window
-    known = known_pos.reshape(n, u, 2)
-    others = known - corner[:, None, :]
-    not_self = ~np.eye(u, dtype=bool)[np.tile(np.arange(u), b)]  # (n, u)
-    visible = (
-        not_self
-        & (known[..., 0] >= 0)
-        & (others[..., 0] >= 0)
-        & (others[..., 0] < f)
-        & (others[..., 1] >= 0)
-        & (others[..., 1] < f)
-    )
-    rows = np.broadcast_to(idx[:, None], (n, u))[visible]
-    np.add.at(obs[:, 1], (rows, others[..., 0][visible], others[..., 1][visible]), 1.0)
+    rel = positions.reshape(n, -1, 2) - corner[:, None, :]
+    visible = others.reshape(n, -1) & (rel >= 0).all(-1) & (rel < f).all(-1)
+    rows = np.broadcast_to(idx[:, None], visible.shape)[visible]
+    np.add.at(obs[:, 1], (rows, rel[..., 0][visible], rel[..., 1][visible]), 1.0)
     return obs.reshape(b, u, 3, f, f)

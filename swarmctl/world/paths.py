@@ -31,11 +31,11 @@ def grid_distances(passable: np.ndarray, sources: np.ndarray) -> np.ndarray:
     return dist
 
 
-def step_towards(dist_to_goal: np.ndarray, pos: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """The move (0..4) that lowers the distance to the goal most, ties broken at random.
+def step_towards(dist_to_goal: np.ndarray, pos: np.ndarray, ties: np.ndarray) -> np.ndarray:
+    """The move (0..4) that lowers the distance to the goal most, ties broken by `ties`.
 
-    dist_to_goal: (N, W, H) distances from each goal; pos: (N, 2). A vehicle at its goal, or with no
-    path, stays.
+    dist_to_goal: (N, W, H) distances from each goal; pos: (N, 2); ties: (N, 5) uniforms in [0, 1) (the
+    highest among the equally good moves wins). A vehicle at its goal, or with no path, stays.
     """
     from swarmctl.world.moves import MOVES
 
@@ -48,9 +48,9 @@ def step_towards(dist_to_goal: np.ndarray, pos: np.ndarray, rng: np.random.Gener
     d[~inside] = np.inf
     d[d >= UNREACHABLE] = np.inf
     best = d.min(1, keepdims=True)
-    ties = (d == best) & np.isfinite(d)
-    ties[~np.isfinite(best[:, 0]), 0] = True  # no path: stay
-    return np.argmax(ties * rng.random(ties.shape), axis=1)
+    choice = (d == best) & np.isfinite(d)
+    choice[~np.isfinite(best[:, 0]), 0] = True  # no path: stay
+    return np.argmax(choice * (ties + 1.0), axis=1)
 
 
 def largest_free_region(blocked: np.ndarray) -> np.ndarray:

@@ -1,0 +1,73 @@
+"""Policy randomness keyed by (seed, episode, step, vehicle, stream): batch size never changes a draw.
+
+Every random number a policy uses (tie-breaks, softmax sampling, random moves) is a pure function of
+the policy's seed, the episode id, the step, the vehicle's index in the swarm, a stream id naming the
+purpose, and the element's index: a counter-based generator (SplitMix64 finalisers over the key,
+vectorised in numpy). So an episode plays the same whether it runs alone or in a batch of 500, in
+chunks or not, and a vehicle planning another vehicle's move (the frontier planner's claims) draws the
+very numbers that vehicle draws for itself. 53-bit uniforms in [0, 1).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarmctl.world.beliefs import Beliefs
+
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1, _M2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+
+# one stream per purpose, so adding a draw in one place never shifts another's numbers
+TIES, CLAIMS, NAVIGATE, SOFTMAX, RANDOM, LOOKAHEAD = range(1, 7)
+
+
+def _mix(z: np.ndarray) -> np.ndarray:
+    z = z.astype(np.uint64, copy=True)
+    z ^= z >> np.uint64(30)
+    z *= _M1
+    z ^= z >> np.uint64(27)
+    z *= _M2
+    z ^= z >> np.uint64(31)
+    return z
+
+
+def _key(*parts) -> np.ndarray:
+    """Fold integer arrays (broadcast together) into one 64-bit key per element."""
+    with np.errstate(over="ignore"):
+        h = np.uint64(0x5EED)
+        for p in parts:
+            h = _mix(np.asarray(h, dtype=np.uint64) + _GOLDEN + np.asarray(p).astype(np.int64).astype(np.uint64))
+        return h
+
+
+def uniform(
+    seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape: tuple[int, ...] = ()
+) -> np.ndarray:
+    """Uniforms in [0, 1) of shape broadcast(episodes[:, None...], vehicles) + shape.
+
+    episodes: (B,) ids; vehicles: (B, V) indices in the swarm (deciders, or any vehicles)."""
+    episodes = np.asarray(episodes, dtype=np.int64).reshape(-1, *([1] * (np.ndim(vehicles) - 1)))
+    key = _key(seed, episodes, step, vehicles, stream)  # (B, V)
+    size = int(np.prod(shape)) if shape else 1
+    with np.errstate(over="ignore"):
+        index = np.arange(size, dtype=np.uint64) * _GOLDEN
+        bits = _mix(key[..., None] + index)
+    out = (bits >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))
+    return out.reshape(*key.shape, *shape)
+
+
+class Draws:
+    """The draws of one decision: bound to a policy seed and the beliefs' episodes, step and deciders."""
+
+    def __init__(self, seed: int, beliefs: Beliefs):
+        self.seed, self.episodes, self.step, self.me = int(seed), beliefs.episodes, beliefs.step, beliefs.me
+
+    def deciders(self, stream: int, *shape: int) -> np.ndarray:
+        """(B, U, *shape) uniforms, one set per decider."""
+        return uniform(self.seed, self.episodes, self.step, self.me, stream, shape)
+
+    def vehicles(self, stream: int, n: int, *shape: int) -> np.ndarray:
+        """(B, n, *shape) uniforms, one set per vehicle 0..n-1 of the swarm (the same numbers whoever
+        draws them)."""
+        ids = np.broadcast_to(np.arange(n), (len(self.episodes), n))
+        return uniform(self.seed, self.episodes, self.step, ids, stream, shape)

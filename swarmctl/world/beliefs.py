@@ -1,0 +1,265 @@
+"""What a policy may know: each deciding vehicle's beliefs, never the hidden truth.
+
+`Beliefs` is the one input of every policy (swarmctl.policy) and of the observation builder
+(swarmctl.world.observe). The simulator builds it from its arrays (`SearchEnv.beliefs`), the
+controller from each agent's Knowledge (`swarmctl.knowledge.model.beliefs_from_knowledge`); both end
+in `Beliefs(...)`, whose checks and derived views are the same for both.
+
+Shapes: B batches (episodes in the simulator, 1 in the field), U deciders per batch (the vehicles a
+policy chooses moves for), N vehicles in the swarm (deciders are some of them: all in the
+simulator, the searching agents of a process in the field), a W x H grid indexed [x, y].
+
+`ObservationSettings` are the constants that turn beliefs into what a policy sees (sensing radius,
+window, the obstacle weight rho, the value map's spread): a learned policy carries the ones it was
+trained with in its checkpoint, so the field observes exactly as the simulator did.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+
+from swarmctl.world.taken import remove_taken_targets
+
+PAPER_VARIANT = "venturini2021"  # the paper's F x F, 3-channel observation
+
+
+@dataclass(frozen=True)
+class ObservationSettings:
+    """How beliefs become an observation (the checkpoint's world config stores them)."""
+
+    fov: float = 3.0  # zeta: sensing radius in cells (also what planners assume)
+    window: int = 20  # F: observation window side
+    rho: float = 0.2  # obstacle weight in the value channel
+    sigma2: float = 1.0  # value-map spread (taken targets are removed with it)
+    phi_cutoff: float = 0.01  # phi below this reads 0
+    phi_tolerance: float = 1e-6  # how far a known phi may be from the exact one (quantised in the field)
+    variant: str = PAPER_VARIANT  # the observation/network variant
+
+    @classmethod
+    def from_world(cls, world: Any, phi_tolerance: float = 1e-6) -> ObservationSettings:
+        """The settings of a WorldConfig or of a checkpoint's stored world dict."""
+        get = world.get if isinstance(world, dict) else lambda k, d: getattr(world, k, d)
+        defaults = cls()
+        kw = {f.name: get(f.name, getattr(defaults, f.name)) for f in fields(cls) if f.name != "phi_tolerance"}
+        return cls(**kw, phi_tolerance=phi_tolerance)
+
+
+class Beliefs:
+    """B x U deciders' knowledge (see the module docstring for the axes).
+
+    explored (B, U, W, H) bool; phi_hat (B, U, W, H) float32, the known value phi where explored and 1
+    elsewhere (the paper's optimism); obstacles (B, U, W, H) bool, known obstacles (False where
+    unexplored); targets (B, U, W, H) bool, cells known to hold a target; positions (B, U, N, 2) int,
+    where decider u believes vehicle n is (-1, -1 when unknown; its own row is its own cell); hovering
+    (B, U, N) bool, u believes n hovers on a target (its own entry: it hovers); me (B, U) int, the
+    decider's own index among the N vehicles; episodes (B,) int, the batches' episode ids (policy draws
+    are keyed by them and by `step`).
+
+    The grid-sized fields (phi_hat, obstacles, targets) and `value` (the value channel without taken
+    targets removed, computed from the other fields when not given) may be zero-argument callables:
+    the simulator gives them so, and each is computed once, when a policy first reads it."""
+
+    FIELDS = ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me", "episodes", "step")
+    _MAPS = {"phi_hat": np.float32, "obstacles": bool, "targets": bool, "value": np.float32}
+
+    def __init__(
+        self,
+        explored,
+        phi_hat,
+        obstacles,
+        targets,
+        positions,
+        hovering,
+        me,
+        episodes,
+        step: int = 0,
+        settings: ObservationSettings | None = None,
+        value=None,
+    ):
+        self.explored = np.asarray(explored, dtype=bool)
+        b, u, w, h = self.explored.shape
+        self._maps = {"phi_hat": phi_hat, "obstacles": obstacles, "targets": targets, "value": value}
+        for name, given in self._maps.items():
+            if given is not None and not callable(given):
+                self._map(name)  # check it now
+        self.positions = np.asarray(positions, dtype=np.int64)
+        self.hovering = np.asarray(hovering, dtype=bool)
+        self.me = np.asarray(me, dtype=np.int64)
+        self.episodes = np.asarray(episodes, dtype=np.int64).reshape(b)
+        self.step = int(step)
+        self.settings = settings or ObservationSettings()
+        n = self.positions.shape[2] if self.positions.ndim == 4 else -1
+        for name, arr, shape in (
+            ("positions", self.positions, (b, u, n, 2)),
+            ("hovering", self.hovering, (b, u, n)),
+            ("me", self.me, (b, u)),
+        ):
+            if arr.shape != shape:
+                raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {shape}")
+        if n < 1 or self.me.min(initial=0) < 0 or self.me.max(initial=0) >= n:
+            raise ValueError(f"beliefs: a decider's own index is outside the {n} vehicles")
+        x, y = self.positions[..., 0], self.positions[..., 1]
+        if x.size and (min(x.min(), y.min()) < -1 or x.max() >= w or y.max() >= h):
+            raise ValueError("beliefs: a known position lies outside the grid")
+        if self.pos.min(initial=0) < 0:
+            raise ValueError("beliefs: every decider must know its own cell")
+
+    def _map(self, name: str) -> np.ndarray:
+        """A grid-sized field, computed (once) if it was given as a callable, and checked."""
+        given = self._maps[name]
+        if callable(given):
+            given = given()
+        arr = np.asarray(given, dtype=self._MAPS[name])
+        if arr.shape != self.explored.shape:
+            raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {self.explored.shape}")
+        self._maps[name] = arr
+        return arr
+
+    @property
+    def phi_hat(self) -> np.ndarray:
+        """(B, U, W, H) float32: the known phi where explored, 1 elsewhere. Shared: do not modify it."""
+        return self._map("phi_hat")
+
+    @property
+    def obstacles(self) -> np.ndarray:
+        """(B, U, W, H) bool: the obstacles the decider knows of."""
+        return self._map("obstacles")
+
+    @property
+    def targets(self) -> np.ndarray:
+        """(B, U, W, H) bool: the cells the decider knows to hold a target."""
+        return self._map("targets")
+
+    # --- sizes --------------------------------------------------------------------------------------
+    @property
+    def batch(self) -> int:
+        return self.explored.shape[0]
+
+    @property
+    def deciders(self) -> int:
+        return self.explored.shape[1]
+
+    @property
+    def vehicles(self) -> int:
+        return self.positions.shape[2]
+
+    @property
+    def width(self) -> int:
+        return self.explored.shape[2]
+
+    @property
+    def height(self) -> int:
+        return self.explored.shape[3]
+
+    # --- derived views (computed once per Beliefs) ---------------------------------------------------
+    @cached_property
+    def pos(self) -> np.ndarray:
+        """(B, U, 2) each decider's own cell."""
+        return np.take_along_axis(self.positions, self.me[..., None, None], axis=2)[:, :, 0]
+
+    @cached_property
+    def others(self) -> np.ndarray:
+        """(B, U, N) bool: vehicle n is another vehicle whose position the decider knows."""
+        n = np.arange(self.vehicles)
+        return (self.positions[..., 0] >= 0) & (n[None, None, :] != self.me[..., None])
+
+    @cached_property
+    def hovering_self(self) -> np.ndarray:
+        """(B, U) bool: the decider hovers on a target (it stays there)."""
+        return np.take_along_axis(self.hovering, self.me[..., None], axis=2)[..., 0]
+
+    def _cell_counts(self, which: np.ndarray) -> np.ndarray:
+        """(B, U, W, H) int: how many of the vehicles selected by `which` (B, U, N) are on each cell."""
+        b, u, w, h = self.explored.shape
+        bi, ui, ni = np.nonzero(which)
+        flat = ((bi * u + ui) * w + self.positions[bi, ui, ni, 0]) * h + self.positions[bi, ui, ni, 1]
+        return np.bincount(flat, minlength=b * u * w * h).reshape(b, u, w, h)
+
+    @cached_property
+    def others_count(self) -> np.ndarray:
+        """(B, U, W, H) int: how many other vehicles the decider believes are on each cell."""
+        return self._cell_counts(self.others)
+
+    @cached_property
+    def held(self) -> np.ndarray:
+        """(B, U, W, H) bool: cells of the other vehicles the decider believes hover on a target. They
+        stay there and the guard refuses every move into them, so planners go round them."""
+        return self._cell_counts(self.others & self.hovering) > 0
+
+    @cached_property
+    def hover_cells(self) -> np.ndarray:
+        """(B, U, W, H) bool: cells of every vehicle the decider believes hovers on a target, itself
+        included: what the swarm's plan keeps every searching vehicle out of."""
+        return self._cell_counts((self.positions[..., 0] >= 0) & self.hovering) > 0
+
+    @cached_property
+    def blocked(self) -> np.ndarray:
+        """(B, U, W, H) bool: what the decider must not enter: known obstacles and held cells."""
+        return self.obstacles | self.held
+
+    @cached_property
+    def taken(self) -> np.ndarray:
+        """(B, U, W, H) bool: known targets on which the decider believes another vehicle is."""
+        return self.targets & (self.others_count > 0)
+
+    def phi_without_taken(self) -> np.ndarray:
+        """phi_hat with the taken targets removed (swarmctl.world.taken), as LA(n) sees it."""
+        s = self.settings
+        if not self.taken.any():
+            return self.phi_hat
+        return remove_taken_targets(self.phi_hat, self.explored, self.taken, s.sigma2, s.phi_cutoff, s.phi_tolerance)
+
+    def value_channel(self, remove_taken: bool = False) -> np.ndarray:
+        """phi_hat - rho * omega_hat per decider (B, U, W, H) float32: unexplored cells read 1; with
+        remove_taken the targets others sit on leave phi_hat first. The result may be shared: do not
+        modify it."""
+        if remove_taken and self.taken.any():
+            base = self.phi_without_taken()
+        elif self._maps["value"] is not None:
+            return self._map("value")
+        else:
+            base = self.phi_hat
+        if self.obstacles.any():
+            return base - np.float32(self.settings.rho) * self.obstacles
+        return base
+
+    def last_searching(self) -> np.ndarray:
+        """(B, U) bool: the decider is the one vehicle not hovering on a target, by what it knows of the
+        others (every other vehicle known and hovering): the paper's straggler."""
+        others = np.arange(self.vehicles)[None, None, :] != self.me[..., None]
+        all_hover = ((self.others & self.hovering) | ~others).all(-1)
+        return ~self.hovering_self & all_hover & (self.vehicles > 1)
+
+    def shared(self) -> np.ndarray:
+        """(B,) bool: every decider of the batch holds the same maps as planners read them (explored
+        cells, obstacles, targets) and the same picture of the swarm (ideal sharing): planning for the
+        swarm may then be done once for the batch."""
+        same = np.ones(self.batch, dtype=bool)
+        for arr in (self.explored, self.obstacles, self.targets, self.positions, self.hovering):
+            same &= (arr == arr[:, :1]).reshape(self.batch, -1).all(1)
+        return same
+
+    def select(self, batches: np.ndarray) -> Beliefs:
+        """The beliefs of some batches only (`batches`: bool mask or indices over B)."""
+        idx = np.flatnonzero(batches) if np.asarray(batches).dtype == bool else np.asarray(batches)
+
+        def part(name: str):
+            return None if self._maps[name] is None else (lambda: self._map(name)[idx])
+
+        return Beliefs(
+            self.explored[idx],
+            part("phi_hat"),
+            part("obstacles"),
+            part("targets"),
+            self.positions[idx],
+            self.hovering[idx],
+            self.me[idx],
+            self.episodes[idx],
+            self.step,
+            self.settings,
+            part("value"),
+        )
