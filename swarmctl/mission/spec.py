@@ -32,12 +32,9 @@ fills them in from the grid and the policy, once, and checks them against both.
 from __future__ import annotations
 
 import argparse
-import json
-import math
 import re
 import sys
 import tomllib
-import typing
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -58,6 +55,7 @@ from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
 from swarmctl.mavlink.autopilots import AUTOPILOT_NAMES
 from swarmctl.mavlink.codec import Endpoint, parse_connection
+from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_table, replace_between, table_of_key
 
 MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
 END_ACTIONS = ("land", "rtl", "hover")
@@ -69,16 +67,6 @@ NAME_SPAN = "letters, digits, . _ - (up to 64)"
 # ask for telemetry often, wait less for the landings.
 DEMO_SETTINGS = dict(time_limit=300.0, step_period=0.0, step_timeout=10.0, end_timeout=60.0, telemetry_hz=20.0)
 DOC_BEGIN, DOC_END = "<!-- mission-spec:begin -->", "<!-- mission-spec:end -->"
-
-
-class SpecError(ValueError):
-    """A rule a value breaks and the fix, raised inside validation; `key` continues the error's
-    location (for checks over several keys), `value` is the value to show (else pydantic's input),
-    `example` a good value to give on a command line."""
-
-    def __init__(self, rule: str, fix: str, key: tuple = (), value: Any = None, example: str | None = None):
-        super().__init__(f"{rule}; {fix}")
-        self.rule, self.fix, self.key, self.value, self.example = rule, fix, key, value, example
 
 
 # --- value types: files and connections -------------------------------------------------------------
@@ -196,7 +184,7 @@ class Table(BaseModel):
     @classmethod
     def bounds(cls, key: str) -> tuple[Any, Any]:
         """The range (lowest, highest) of a number key."""
-        return _bounds(cls.model_fields[key])
+        return bounds(cls.model_fields[key])
 
 
 class MissionTable(Table):
@@ -414,12 +402,14 @@ class VehicleSpec(Table):
 class MissionSpec(Table):
     """A whole mission file."""
 
-    mission: MissionTable = setting(..., "the mission")
+    mission: MissionTable = setting(..., "a [mission] table with at least policy and grid or area")
     timing: TimingTable = Field(default_factory=TimingTable, description="timing")
     flight: FlightTable = Field(default_factory=FlightTable, description="flight")
     battery: BatteryTable = Field(default_factory=BatteryTable, description="battery")
     knowledge: KnowledgeTable = Field(default_factory=KnowledgeTable, description="knowledge sharing")
-    vehicles: list[VehicleSpec] = setting(..., "the vehicles", min_length=1, max_length=250)
+    vehicles: list[VehicleSpec] = setting(
+        ..., "one [[vehicles]] table per vehicle (name, connection, sysid)", min_length=1, max_length=250
+    )
 
     @model_validator(mode="after")
     def _distinct_vehicles(self) -> MissionSpec:
@@ -457,7 +447,6 @@ class MissionSpec(Table):
         return validate(data, where)
 
 
-SETTING_TABLES = ("mission", "timing", "flight", "battery", "knowledge")
 TABLES: dict[str, type[Table]] = {
     "mission": MissionTable,
     "timing": TimingTable,
@@ -466,8 +455,10 @@ TABLES: dict[str, type[Table]] = {
     "knowledge": KnowledgeTable,
     "vehicles": VehicleSpec,
 }
-TABLE_OF = {key: t for t in SETTING_TABLES for key in TABLES[t].model_fields}
-assert len(TABLE_OF) == sum(len(TABLES[t].model_fields) for t in SETTING_TABLES), "setting names must be unique"
+SETTING_TABLES = tuple(t for t in TABLES if t != "vehicles")
+TABLE_OF = table_of_key(MissionSpec)  # a setting's flat name -> its table
+if len(TABLE_OF) != sum(len(TABLES[t].model_fields) for t in SETTING_TABLES):
+    raise RuntimeError("two tables of the mission spec have a key of the same name")
 
 
 # --- reading and errors ----------------------------------------------------------------------------------
@@ -503,223 +494,7 @@ def validate(data: dict, where: str, base: Path | None = None) -> MissionSpec:
     try:
         return MissionSpec.model_validate(data, context={"base": base} if base is not None else None)
     except ValidationError as exc:
-        raise InputError(f"{where}: {explain(exc.errors()[0])}") from None
-
-
-def explain(error: Any) -> str:
-    """One pydantic error as `key = value: rule; fix` (or `key is missing; fix`, `key is not a key ...`)."""
-    loc = tuple(error["loc"])
-    cause = (error.get("ctx") or {}).get("error")
-    if isinstance(cause, SpecError):
-        loc += cause.key
-    else:
-        cause = None
-    parts, info, owner = _walk(loc)
-    key = _key(parts)
-    if error["type"] == "extra_forbidden":
-        return _unknown(parts, owner)
-    table = _table_of(info) if info is not None and cause is None else None
-    if error["type"] == "missing":
-        if parts == ["vehicles"]:
-            return "[[vehicles]] is missing; add one [[vehicles]] table per vehicle (name, connection, sysid)"
-        if parts == ["mission"]:
-            return "[mission] is missing; add a [mission] table with at least policy and grid or area"
-        return f"{key} is missing ({info.description if info else 'needed'}); {_fix(parts, info)}"
-    if error["type"] == "too_short" and parts == ["vehicles"]:
-        return "[[vehicles]] is empty; add one [[vehicles]] table per vehicle (name, connection, sysid)"
-    if table is not None:
-        if parts == ["vehicles"]:
-            return "[[vehicles]] must hold one table per vehicle; write one [[vehicles]] block per vehicle"
-        if parts[0] == "vehicles":
-            return f"{key} must be a table; write one [[vehicles]] block per vehicle"
-        return f"[{key}] must be a table; write [{key}] on a line of its own, then its keys"
-    value = cause.value if cause is not None and cause.value is not None else error.get("input")
-    if cause is not None:
-        return f"{key} = {_value(value)}: {cause.rule}; {cause.fix}"
-    return f"{key} = {_value(value)}: {_rule(info)}; {_fix(parts, info)}"
-
-
-def _walk(loc: tuple) -> tuple[list, Any, type[BaseModel]]:
-    """Along an error's location: the key path in the file, the field it ends on (None for an
-    unknown key) and the table that holds it."""
-    model: type[BaseModel] | None = MissionSpec
-    owner: type[BaseModel] = MissionSpec
-    parts: list = []
-    info = None
-    for part in loc:
-        if isinstance(part, int):
-            if parts and parts[-1] == "vehicles":
-                parts.append(part)
-            continue
-        if model is None:  # past a value (pydantic's tags inside a type)
-            break
-        parts.append(part)
-        owner = model
-        info = model.model_fields.get(part)
-        if info is None:  # an unknown key
-            break
-        model = _table_of(info)
-    return parts, info, owner
-
-
-def _table_of(info: Any) -> type[BaseModel] | None:
-    for t in (info.annotation, *typing.get_args(info.annotation)):
-        if isinstance(t, type) and issubclass(t, BaseModel):
-            return t
-    return None
-
-
-def _key(parts: list) -> str:
-    out = ""
-    for p in parts:
-        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else p)
-    return out
-
-
-def _unknown(parts: list, owner: type[BaseModel]) -> str:
-    key, name = _key(parts), parts[-1]
-    if len(parts) == 1:
-        if name in TABLE_OF:
-            return f"{name} belongs in [{TABLE_OF[name]}]; write it below that table's heading"
-        known = ", ".join([f"[{t}]" for t in SETTING_TABLES] + ["[[vehicles]]"])
-        return f"[{name}] is not a known table; use one of {known}"
-    table = "[[vehicles]]" if parts[0] == "vehicles" else f"[{parts[0]}]"
-    if parts[0] != "vehicles" and TABLE_OF.get(name, parts[0]) != parts[0]:
-        return f"{key} belongs in [{TABLE_OF[name]}], not {table}; move it there"
-    return f"{key} is not a key of {table}; use one of {', '.join(sorted(owner.model_fields))}"
-
-
-def _bounds(info: Any) -> tuple[float | None, float | None]:
-    lo = next((m.ge for m in info.metadata if hasattr(m, "ge")), None)
-    hi = next((m.le for m in info.metadata if hasattr(m, "le")), None)
-    return lo, hi
-
-
-def _base_type(info: Any) -> Any:
-    """The field's type without None and without Annotated metadata (Literal kept whole)."""
-    t = info.annotation
-    args = [a for a in typing.get_args(t) if a is not type(None)]
-    if typing.get_origin(t) is not Literal and type(None) in typing.get_args(t):
-        t = args[0]
-    if typing.get_origin(t) is Annotated:
-        t = typing.get_args(t)[0]
-    return t
-
-
-def _choices(info: Any) -> tuple | None:
-    t = _base_type(info)
-    return typing.get_args(t) if typing.get_origin(t) is Literal else None
-
-
-def _kind(info: Any) -> str:
-    t = _base_type(info)
-    if _choices(info):
-        return "choice"
-    names = {float: "number", int: "integer", bool: "true/false", str: "string", Path: "file path"}
-    return names.get(t, "connection" if t is Endpoint else "table")
-
-
-def _unit(info: Any) -> str:
-    unit = (info.json_schema_extra or {}).get("unit", "")
-    return f" ({unit})" if unit and unit != "%" else (" %" if unit else "")
-
-
-def _rule(info: Any) -> str:
-    if info is None:
-        return "is not valid"
-    kind, (lo, hi) = _kind(info), _bounds(info)
-    if kind == "number":
-        return f"must be a finite number from {lo:g} to {hi:g}{_unit(info)}"
-    if kind == "integer":
-        return f"must be a whole number from {lo} to {hi}{_unit(info)}"
-    if kind == "true/false":
-        return "must be true or false"
-    if kind == "choice":
-        return f"must be one of {', '.join(_choices(info))}"
-    if info.metadata and any(hasattr(m, "pattern") for m in info.metadata):
-        return "must be a name of letters, digits, '.', '_' or '-' (at most 64, starting with a letter or digit)"
-    return "must be a non-empty string"
-
-
-def _example(info: Any) -> Any:
-    extra = info.json_schema_extra or {}
-    if "example" in extra:
-        return extra["example"]
-    if _choices(info):
-        return info.default if info.default is not None else _choices(info)[0]
-    return info.default
-
-
-def _fix(parts: list, info: Any) -> str:
-    if info is None:
-        return "see docs/mission.md"
-    return f"write for example {parts[-1]} = {_value(_example(info))}"
-
-
-def _value(value: Any) -> str:
-    """A value as it would be written in TOML, shortened to fit one line."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, (str, Path, Endpoint)):
-        text = json.dumps(str(value))
-    elif isinstance(value, dict):
-        text = "{" + ", ".join(f"{k} = {_value(v)}" for k, v in value.items()) + "}"
-    elif isinstance(value, list):
-        text = "[" + ", ".join(_value(v) for v in value) + "]"
-    else:
-        text = json.dumps(str(value))
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-# --- the key table in docs/mission.md --------------------------------------------------------------------
-
-
-def markdown_table() -> str:
-    """Every key of a mission file: table, key, type, default, range, meaning."""
-    rows = ["| table | key | type | default | range | meaning |", "|---|---|---|---|---|---|"]
-    for table, model in TABLES.items():
-        name = "[[vehicles]]" if table == "vehicles" else f"[{table}]"
-        for key, info in model.model_fields.items():
-            extra = info.json_schema_extra or {}
-            if "default_text" in extra:
-                default = extra["default_text"]
-            elif info.is_required():
-                default = "required"
-            elif info.default is None:
-                default = "none"
-            else:
-                default = f"`{_value(info.default)}`"
-            lo, hi = _bounds(info)
-            unit = extra.get("unit", "")
-            if lo is not None:
-                span = f"{lo:g} to {hi:g} {unit}".strip()
-            elif _choices(info):
-                span = ", ".join(_choices(info))
-            else:
-                span = extra.get("span", "")
-            meaning = (info.description or "").replace("|", "\\|")
-            rows.append(f"| {name} | `{key}` | {_kind(info)} | {default} | {span} | {meaning} |")
-    return "\n".join(rows)
-
-
-def write_doc(path: Path) -> bool:
-    """Replace the key table between the markers in `path`; True when it changed."""
-    text = path.read_text()
-    head, begin, rest = text.partition(DOC_BEGIN)
-    _, end, tail = rest.partition(DOC_END)
-    if not begin or not end:
-        raise SystemExit(f"{path}: no {DOC_BEGIN} ... {DOC_END} markers")
-    new = f"{head}{DOC_BEGIN}\n{markdown_table()}\n{DOC_END}{tail}"
-    path.write_text(new)
-    return new != text
+        raise InputError(f"{where}: {explain(exc.errors()[0], MissionSpec)}") from None
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -729,9 +504,10 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--write", type=Path, help="replace the table between the markers in this file")
     args = ap.parse_args(argv)
     if args.write:
-        print(f"{args.write}: {'updated' if write_doc(args.write) else 'already up to date'}")
+        changed = replace_between(args.write, DOC_BEGIN, DOC_END, markdown_table(MissionSpec))
+        print(f"{args.write}: {'updated' if changed else 'already up to date'}")
     if args.markdown or not args.write:
-        sys.stdout.write(markdown_table() + "\n")
+        sys.stdout.write(markdown_table(MissionSpec) + "\n")
 
 
 if __name__ == "__main__":
