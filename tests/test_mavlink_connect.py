@@ -5,7 +5,6 @@ PX4s with no key at all."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 import json
 import socket
 
@@ -167,8 +166,8 @@ def test_a_firmware_swarmctl_does_not_fly_fails_that_vehicle_or_contradicts_its_
 def test_a_mission_without_autopilot_keys_flies_an_ardupilot_and_a_px4_identified_by_their_heartbeats(tmp_path):
     grid = small_grid()
     with SimSwarm(grid, uavs=2, seed=1, speedup=30.0, autopilots=["ardupilot", "px4"]) as swarm:
+        swarm.specs = [v.model_copy(update={"autopilot": None}) for v in swarm.specs]
         plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
-        plan.vehicles = [dataclasses.replace(v, autopilot=None) for v in plan.vehicles]
         controller, outcome = fly(plan, tmp_path)
         hidden = {tuple(t) for t in swarm.targets.tolist()}
     assert outcome == "complete"
@@ -176,15 +175,15 @@ def test_a_mission_without_autopilot_keys_flies_an_ardupilot_and_a_px4_identifie
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert [v["autopilot"] for v in summary["vehicles"]] == ["ardupilot", "px4"]  # what the vehicles said
     assert {tuple(v["cell"]) for v in summary["vehicles"]} <= hidden
-    assert [link["connection"] for link in summary["links"]] == [plan.vehicles[0].connection]  # the PX4's went
+    assert [link["connection"] for link in summary["links"]] == [str(plan.spec.vehicles[0].connection)]  # PX4's went
 
 
 @pytest.mark.slow
 def test_a_key_the_vehicle_contradicts_stops_the_mission_and_the_vehicle_in_the_air_comes_home(tmp_path):
     grid = small_grid()
     with SimSwarm(grid, uavs=2, seed=2, speedup=30.0, autopilots=["ardupilot", "px4"]) as swarm:
+        swarm.specs[1] = swarm.specs[1].model_copy(update={"autopilot": "ardupilot"})  # it is a PX4
         plan = swarm.plan("frontier", end_action="hover", time_limit=120.0)
-        plan.vehicles[1] = dataclasses.replace(plan.vehicles[1], autopilot="ardupilot")  # it is a PX4
         copter, px4 = swarm.mocks
         px4.drop_heartbeats(6.0)  # silent while the copter takes off
         rec = Recorder(tmp_path)
@@ -206,7 +205,7 @@ def test_a_key_the_vehicle_contradicts_stops_the_mission_and_the_vehicle_in_the_
             rec.close()
         landed = not copter.armed and copter.rel_alt == 0.0
     message = str(err.value)
-    assert message.startswith(f"the mission: uav2 (system id 2 on {plan.vehicles[1].connection}) reports a PX4")
+    assert message.startswith(f"the mission: uav2 (system id 2 on {plan.spec.vehicles[1].connection}) reports a PX4")
     assert "\n" not in message and 'write autopilot = "px4"' in message
     assert controller.outcome == "failed" and highest == [True]  # the copter was flying when it stopped
     first, second = controller.agents

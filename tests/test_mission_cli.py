@@ -19,19 +19,12 @@ from pymavlink import mavutil
 
 from swarmctl.cli import main
 from swarmctl.errors import InputError
-from tests.mission_support import small_grid
+from swarmctl.mavlink.codec import Endpoint
+from swarmctl.mission.plan import make_plan
+from swarmctl.mission.spec import load_spec
+from tests.mission_support import small_grid, small_mission
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def small_mission(tmp_path: Path, **mission: str) -> Path:
-    small_grid().save(tmp_path / "grid.npz")
-    fields = {"name": '"small"', "grid": '"grid.npz"', "policy": '"frontier"', "end_action": '"hover"', **mission}
-    body = "[mission]\n" + "".join(f"{k} = {v}\n" for k, v in fields.items())
-    body += '[[vehicles]]\nname = "a"\nconnection = "udpin:127.0.0.1:14551"\nsysid = 1\n'
-    path = tmp_path / "mission.toml"
-    path.write_text(body)
-    return path
 
 
 @pytest.mark.slow
@@ -94,7 +87,7 @@ def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, 
 
 @pytest.mark.slow
 def test_sigterm_mid_mission_gives_every_vehicle_its_end_action_and_exits_130(tmp_path):
-    mission = small_mission(tmp_path, time_limit="300.0")
+    mission = small_mission(tmp_path)
     out = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.Popen(
@@ -151,14 +144,15 @@ def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_withou
 
     monkeypatch.chdir(ROOT)
     policy, note = mission_cli.default_policy()
-    assert policy == f"ddql:{ROOT / 'models' / 'obstacles-3uav.pt'}:straggler=frontier" and note is None
+    assert policy.spec == f"ddql:{ROOT / 'models' / 'obstacles-3uav.pt'}:straggler=frontier" and note is None
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(mission_cli, "ROOT", tmp_path)
-    assert mission_cli.default_policy() == ("frontier", "models/obstacles-3uav.pt is not there")
+    policy, note = mission_cli.default_policy()
+    assert (policy.spec, note) == ("frontier", "models/obstacles-3uav.pt is not there")
     (tmp_path / "models").mkdir()
     (tmp_path / "models" / "obstacles-3uav.pt").write_bytes(b"not a checkpoint")
     policy, note = mission_cli.default_policy()
-    assert policy == "frontier" and "cannot be used" in note
+    assert policy.spec == "frontier" and "cannot be used" in note
 
 
 BAD = [
@@ -199,25 +193,72 @@ def test_fly_prints_the_plan_and_does_not_fly_without_confirmation(tmp_path, mon
 
 
 def test_a_vehicle_may_name_its_detector_socket(tmp_path):
-    from swarmctl.mission.config import load_mission
-    from swarmctl.mission.service import plan_from_config
-
     path = small_mission(tmp_path)
     path.write_text(path.read_text() + 'detector = "udp:127.0.0.1:14650"\n')
-    plan = plan_from_config(load_mission(path))
-    assert plan.detectors == {0: ("127.0.0.1", 14650)}
+    plan = make_plan(load_spec(path))
+    assert plan.detectors == {0: Endpoint("udpin", "127.0.0.1", 14650)}
+    assert make_plan(load_spec(path), detector="udp:127.0.0.1:14700").detectors[0].port == 14700  # agent --detector
+    with pytest.raises(InputError, match=r"--detector 'tcp:x'"):
+        make_plan(load_spec(path), detector="tcp:x")
     path.write_text(path.read_text().replace("udp:127.0.0.1:14650", "tcp:x"))
     with pytest.raises(InputError, match=r"vehicles\[0\]\.detector"):
-        load_mission(path)
+        load_spec(path)
 
 
 def test_a_mission_with_the_fence_on_says_so_before_it_flies(tmp_path, monkeypatch, capsys):
-    from swarmctl.mission.config import load_mission
-    from swarmctl.mission.service import plan_from_config
-
     path = small_mission(tmp_path, fence="true")
-    assert plan_from_config(load_mission(path)).fence is True
+    assert make_plan(load_spec(path)).spec.mission.fence is True
     monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
     assert main(["fly", str(path)]) == 1
     assert "fence: the area's boundary, uploaded to every vehicle before take-off" in capsys.readouterr().out
-    assert plan_from_config(load_mission(small_mission(tmp_path))).fence is False
+    assert make_plan(load_spec(small_mission(tmp_path))).spec.mission.fence is False
+
+
+def test_a_grid_planned_at_300_m_flown_at_40_m_is_refused(tmp_path, capsys):
+    path = small_mission(tmp_path, small_grid(altitude=300.0), altitude="40.0")
+    assert main(["fly", str(path), "--yes"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert "mission.altitude = 40 is below the 300 m the grid grid.npz was planned for" in err
+    assert "`swarmctl plan ... --altitude 40`, or fly at the grid's altitude" in err
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "1000.0"])
+def test_bad_numbers_in_a_mission_file_exit_2(tmp_path, capsys, value):
+    assert main(["fly", str(small_mission(tmp_path, altitude=value)), "--yes"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"mission.altitude = {value}: must be a finite" in err
+
+
+def test_fly_says_when_it_flies_above_the_grids_altitude(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["fly", str(small_mission(tmp_path, altitude="55.0"))]) == 1
+    out = capsys.readouterr().out
+    assert "altitude 55 m above home (above the 40 m the grid was planned for" in out
+    assert "sensor footprint 30 m round each cell reached (3 cells)" in out
+
+
+def test_fly_loads_the_checkpoint_once(tmp_path, monkeypatch, capsys):
+    import torch
+
+    from swarmctl.mission.controller import Controller
+    from swarmctl.mission.recorder import Recorder
+    from swarmctl.policy.checkpoint import save_checkpoint
+    from swarmctl.policy.qnet import QNetwork
+
+    save_checkpoint(tmp_path / "m.pt", QNetwork(20), {}, {}, {})
+    loads = []
+    real = torch.load
+    monkeypatch.setattr(torch, "load", lambda *a, **k: loads.append(a[0]) or real(*a, **k))
+    path = small_mission(tmp_path, policy='"ddql:m.pt:tau=0.05"')
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["fly", str(path)]) == 1, capsys.readouterr().err
+    assert len(loads) == 1
+    loads.clear()
+    plan = make_plan(load_spec(path))
+    rec = Recorder(tmp_path / "rec")
+    try:
+        controller = Controller(plan, rec)
+    finally:
+        rec.close()
+    assert len(loads) == 1 and controller.policy is plan.policy  # the controller flies the plan's policy

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
-from swarmctl.sim.swarm import SimSwarm  # noqa: E402
+from swarmctl.sim.swarm import SimSwarm, sim_plan  # noqa: E402
 
 
 def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:
@@ -42,8 +42,6 @@ def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:
 def measure(size: int, policy: str, search: float, speedup: float, seed: int, same_process: bool) -> dict:
     import multiprocessing as mp
 
-    from swarmctl.mission.controller import MissionPlan
-
     grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
     kw = dict(end_action="land", time_limit=search, takeoff_at_once=max(1, size // 4), end_timeout=120.0)
     with tempfile.TemporaryDirectory() as tmp:
@@ -56,19 +54,7 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end))
             child.start()
             specs, radio = parent.recv()
-            plan = MissionPlan(
-                name="overhead",
-                mission_id=7,
-                grid=grid,
-                vehicles=specs,
-                policy=policy,
-                knowledge_peer=radio,
-                seed=seed,
-                step_period=0.0,
-                step_timeout=10.0,
-                telemetry_hz=20.0,
-                **kw,
-            )
+            plan = sim_plan(grid, specs, radio, policy, seed=seed, name="overhead", **kw)
         rec = Recorder(tmp)
         controller = Controller(plan, rec)
         started = time.monotonic()

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Any
 
 import click
 
 import swarmctl
 from swarmctl.errors import EXIT_FAILED, InputError
-from swarmctl.mission.config import END_ACTIONS
+from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS
 
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
@@ -31,20 +32,19 @@ def _find(relative: Path) -> Path | None:
     return None
 
 
-def default_policy() -> tuple[str, str | None]:
-    """The shipped model when it is there and fits the controller, else the frontier planner
-    (with the reason, to tell the user). The model flies with straggler=frontier: on a map 2.5 times
-    its training maps' width, the last vehicle searching alone is the paper's straggler."""
-    model = _find(DEMO_MODEL)
-    if model is None:
-        return "frontier", f"{DEMO_MODEL} is not there"
+def default_policy(seed: int = 0) -> tuple[Any, str | None]:
+    """The FieldPolicy of the shipped model when it is there and fits the controller, else of the
+    frontier planner (with the reason, to tell the user). The model flies with straggler=frontier: on a
+    map 2.5 times its training maps' width, the last vehicle searching alone is the paper's straggler."""
     from swarmctl.mission.decide import FieldPolicy
 
+    model = _find(DEMO_MODEL)
+    if model is None:
+        return FieldPolicy("frontier", seed=seed), f"{DEMO_MODEL} is not there"
     try:
-        FieldPolicy(f"ddql:{model}")
+        return FieldPolicy(f"ddql:{model}:straggler=frontier", seed=seed), None
     except InputError as exc:
-        return "frontier", f"{DEMO_MODEL} cannot be used ({exc})"
-    return f"ddql:{model}:straggler=frontier", None
+        return FieldPolicy("frontier", seed=seed), f"{DEMO_MODEL} cannot be used ({exc})"
 
 
 def _out_folder(out: Path | None, name: str) -> Path:
@@ -87,7 +87,8 @@ def view_options(func):
     "mission_file",
     type=click.Path(path_type=Path),
     default=None,
-    help="Your own mission file: its grid and settings, mock vehicles instead of its [[vehicles]].",
+    help="Your own mission file: its grid and settings (the demo's faster timing over them, these "
+    "options over both), mock vehicles instead of its [[vehicles]].",
 )
 @click.option(
     "--speedup",
@@ -99,7 +100,13 @@ def view_options(func):
 )
 @click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
 @click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
-@click.option("--time-limit", type=float, default=300.0, show_default=True, help="Search time limit, seconds.")
+@click.option(
+    "--time-limit",
+    type=float,
+    default=DEMO_SETTINGS["time_limit"],
+    show_default=True,
+    help="Search time limit, seconds.",
+)
 @click.option(
     "--gcs",
     default=None,
@@ -137,7 +144,9 @@ def demo_command(
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
-    from swarmctl.mission.service import LiveView, draw_mission, gcs_address, run_controller
+    from swarmctl.mission.plan import load_grid
+    from swarmctl.mission.service import LiveView, draw_mission, run_controller
+    from swarmctl.mission.spec import GroundStation, load_spec, parse_option
     from swarmctl.sim.swarm import SimSwarm
 
     if not 1 <= uavs <= 50:
@@ -148,31 +157,33 @@ def demo_command(
         raise InputError(f"--time-limit {time_limit}: must be a number of seconds > 0")
     if targets is not None and targets < 1:
         raise InputError(f"--targets {targets}: hide at least one target")
-    gcs_to = gcs_address(gcs, "--gcs")
+    settings: dict[str, Any] = dict(end_action=end_action, time_limit=time_limit)
+    if gcs is not None:
+        settings["gcs"] = parse_option(GroundStation, gcs, "--gcs")
+    if fence:
+        settings["fence"] = True
     note = None
     if policy is None:
-        policy, note = default_policy()
-    FieldPolicy(policy)  # bad policies fail here, before anything starts
+        field_policy, note = default_policy(seed)
+    else:
+        field_policy = FieldPolicy(policy, seed=seed)  # bad policies fail here, before anything starts
     if note and not quiet:
         click.echo(f"demo: {note}; flying with the frontier planner", err=True)
-    settings: dict = {}
+    base = None
     if mission_file is not None:
-        from swarmctl.mission.config import load_mission
-        from swarmctl.mission.service import load_grid
-
-        cfg = load_mission(mission_file)
-        grid, grid_file = load_grid(cfg), cfg.grid
-        settings = dict(altitude=float(cfg.altitude), mission_id=cfg.mission_id)
-        gcs_to = gcs_to or gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs")
-        fence = fence or cfg.fence
+        base = load_spec(mission_file)
+        grid = load_grid(base)
+        at = dict(mission_id=base.mission.id, altitude=base.mission.altitude)
     else:
         grid_file = _find(DEMO_GRID)
         if grid_file is None:
             raise InputError(f"{DEMO_GRID} not found: run the demo from the project folder, or give --mission FILE")
         grid = GeoGrid.load(grid_file)
+        settings["grid"] = grid_file
+        at = {}
     folder = _out_folder(out, "demo")
     try:
-        swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **settings)
+        swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **at)
         if targets is not None and targets != uavs:
             from swarmctl.sim.swarm import hide_targets
 
@@ -180,16 +191,12 @@ def demo_command(
     except ValueError as exc:
         raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
     with swarm:
-        plan = swarm.plan(
-            policy, end_action=end_action, time_limit=time_limit, grid_file=grid_file, gcs=gcs_to, fence=fence
-        )
-        if mission_file is not None:
-            plan.name, plan.mission_file = cfg.name, cfg.path
+        plan = swarm.plan(field_policy, base=base, mission_file=mission_file, **settings)
         if not quiet:
             click.echo(
                 f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
-                f"hidden targets (seed {seed}), policy {policy}, speed-up {speedup:g}x"
-                f"{', geofence on' if fence else ''} -> {folder}",
+                f"hidden targets (seed {seed}), policy {field_policy.spec}, speed-up {speedup:g}x"
+                f"{', geofence on' if plan.spec.mission.fence else ''} -> {folder}",
                 err=True,
             )
         code, summary = run_controller(
@@ -220,17 +227,17 @@ def demo_command(
 @view_options
 def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
     """Fly a mission with real vehicles (ground mode: this process flies every vehicle)."""
-    from swarmctl.mission.config import load_mission
-    from swarmctl.mission.service import LiveView, describe, plan_from_config, run_controller
+    from swarmctl.mission.plan import make_plan
+    from swarmctl.mission.service import LiveView, describe, run_controller
+    from swarmctl.mission.spec import load_spec
 
-    cfg = load_mission(mission_file)
-    plan = plan_from_config(cfg, seed=seed)
+    plan = make_plan(load_spec(mission_file), seed=seed, mission_file=mission_file)
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly this mission?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    folder = _out_folder(out, plan.name)
+    folder = _out_folder(out, plan.spec.mission.name)
     code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
     _finish(code, folder, summary, quiet)
 
@@ -265,16 +272,17 @@ def agent_command(
     no_live: bool,
 ) -> None:
     """Onboard mode: fly one vehicle (on its companion computer); peers over the knowledge channel."""
-    from swarmctl.mission.config import load_mission
-    from swarmctl.mission.service import LiveView, describe, plan_from_config, run_controller
+    from swarmctl.mission.plan import make_plan
+    from swarmctl.mission.service import LiveView, describe, run_controller
+    from swarmctl.mission.spec import load_spec
 
-    cfg = load_mission(mission_file)
-    plan = plan_from_config(cfg, only=list(vehicles), detector=detector, seed=seed)
+    spec = load_spec(mission_file)
+    plan = make_plan(spec, only=list(vehicles), detector=detector, seed=seed, mission_file=mission_file)
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    folder = _out_folder(out, f"{plan.name}-{'-'.join(vehicles)}")
+    folder = _out_folder(out, f"{plan.spec.mission.name}-{'-'.join(vehicles)}")
     code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
     _finish(code, folder, summary, quiet)

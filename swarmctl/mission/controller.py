@@ -32,8 +32,6 @@ import logging
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -45,10 +43,10 @@ from swarmctl.knowledge.model import Knowledge
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
-from swarmctl.mission.config import VehicleSpec
-from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
+from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
+from swarmctl.mission.spec import VehicleSpec
 from swarmctl.world.guard import SafetyGuard
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
@@ -70,46 +68,6 @@ CONNECT, PREFLIGHT, TAKEOFF, SEARCH, HOVER, LOST, REJOIN, OVERRIDE, LOW_BATTERY,
     "ended",
     "failed",
 )
-
-
-@dataclass
-class MissionPlan:
-    """Everything the controller needs to fly (built from a mission file, or by the demo)."""
-
-    name: str
-    mission_id: int
-    grid: Any  # swarmctl.geo.GeoGrid
-    vehicles: list[VehicleSpec]
-    policy: str
-    altitude: float = 40.0
-    step_period: float = 1.0
-    step_timeout: float = 30.0
-    time_limit: float = 900.0
-    end_action: str = "rtl"
-    signing_key: bytes | None = None
-    knowledge_peer: tuple[str, int] | None = None  # where the exchanges send (radio / router)
-    digest_every: int = 5
-    # push cells a peer's digest lacks at once (issue 6); None: on for swarms of up to 12 vehicles. With
-    # many vehicles on one channel every digest sets off a push from each receiver, so it is off there
-    # and gaps are filled by requests and repairs only.
-    knowledge_push: bool | None = None
-    seed: int = 0
-    grid_file: Path | None = None
-    mission_file: Path | None = None
-    takeoff_at_once: int = 1  # vehicles climbing at the same time (1: one after the other)
-    min_battery: int = 30  # % needed at preflight
-    low_battery: int = 15  # % during the search: the vehicle is sent home
-    reach_tolerance: float = 0.5  # metres
-    telemetry_hz: float = 5.0  # GLOBAL_POSITION_INT rate asked of ArduPilot vehicles
-    sense_timeout: float = 5.0  # seconds to wait for the detector after arriving
-    connect_timeout: float = 20.0
-    ready_timeout: float = 60.0
-    takeoff_timeout: float = 120.0
-    end_timeout: float = 180.0  # seconds to wait for landing after the end action
-    detectors: dict[int, tuple[str, int]] = field(default_factory=dict)  # vehicle index -> local UDP socket
-    only: list[int] | None = None  # onboard mode: the indices of the vehicles this process flies
-    gcs: tuple[str, int] | None = None  # forward the vehicles' MAVLink to this ground station (UDP)
-    fence: bool = False  # upload the area's boundary to every vehicle as its inclusion geofence (preflight)
 
 
 class Agent:
@@ -206,15 +164,16 @@ class Controller:
         self.rec = recorder
         self.view = view
         self.grid = plan.grid
-        self.guard = SafetyGuard(self.grid.blocked, plan.altitude)
-        self.fence = fence_polygon(self.grid) if plan.fence else None  # (lat, lon) vertices
-        self.policy = FieldPolicy(plan.policy, seed=plan.seed)
+        self.guard = SafetyGuard(self.grid.blocked, plan.spec.mission.altitude)
+        self.fence = fence_polygon(self.grid) if plan.spec.mission.fence else None  # (lat, lon) vertices
+        self.policy = plan.policy
         self.agents: list[Agent] = []
         self.links: dict[str, Any] = {}  # connection -> MavlinkLink, shared by the vehicles on it
         self.connector: Any = None  # swarmctl.mavlink.connect.Connector, made by _open
         self.mission_error: InputError | None = None  # what stopped the mission: raised by run()
         self.sources: list[UdpSensorSource] = []
-        self.gcs = GcsForwarder(*plan.gcs) if plan.gcs else None
+        gcs = plan.spec.mission.gcs
+        self.gcs = GcsForwarder(gcs.host, gcs.port) if gcs is not None else None
         self.step = 0
         self.outcome: str | None = None
         self.started = time.monotonic()
@@ -225,7 +184,7 @@ class Controller:
         self.wait_times: list[float] = []  # per round: waiting for vehicles to arrive and for detectors
         self.cpu_times: list[float] = []  # per round: CPU time of the controller's loop thread
         self._stop = asyncio.Event()
-        self._takeoff = asyncio.Semaphore(max(1, plan.takeoff_at_once))
+        self._takeoff = asyncio.Semaphore(plan.spec.flight.takeoff_at_once)
         self._link_seq: dict[tuple[int, int], int] = {}
         self.lost_packets: Counter[int] = Counter()
 
@@ -242,12 +201,12 @@ class Controller:
         """Fly the mission; returns the outcome ("complete", "time limit", "failed", "interrupted")."""
         self.rec.event(
             "mission",
-            name=self.plan.name,
-            policy=self.plan.policy,
-            altitude=self.plan.altitude,
-            end_action=self.plan.end_action,
+            name=self.plan.spec.mission.name,
+            policy=self.plan.policy.spec,
+            altitude=self.plan.spec.mission.altitude,
+            end_action=self.plan.spec.mission.end_action,
             grid=[self.grid.width, self.grid.height],
-            vehicles=[v.name for v in self.plan.vehicles],
+            vehicles=[v.name for v in self.plan.spec.vehicles],
             fence=self.fence,
         )
         try:
@@ -274,27 +233,26 @@ class Controller:
         self.connector = Connector(
             self.links,
             signing_key=plan.signing_key,
-            telemetry_hz=plan.telemetry_hz,
+            telemetry_hz=plan.spec.flight.telemetry_hz,
             on_open=self._watch_link,
             source=str(plan.mission_file or "the mission"),
         )
-        for i, spec in enumerate(plan.vehicles):
+        for i, spec in enumerate(plan.spec.vehicles):
             if plan.only is not None and i not in plan.only:
                 continue
             self.connector.expect(spec.connection)
-            feed = SensorFeed(i, plan.mission_id, w, h)
+            feed = SensorFeed(i, plan.spec.mission.id, w, h)
             if i in plan.detectors:
-                host, port = plan.detectors[i]
-                self.sources.append(UdpSensorSource(feed, host, port).start())
-            peer = plan.knowledge_peer or ("127.0.0.1", 14600)
-            push = plan.knowledge_push if plan.knowledge_push is not None else len(plan.vehicles) <= 12
+                socket = plan.detectors[i]
+                self.sources.append(UdpSensorSource(feed, socket.host, socket.port).start())
+            channel = plan.spec.knowledge.channel
             exchange = KnowledgeExchange(
                 Knowledge(w, h, vehicle_id=i),
-                plan.mission_id,
-                peer,
+                plan.spec.mission.id,
+                (channel.host, channel.port),
                 system_id=spec.sysid,
-                digest_every=plan.digest_every,
-                push=push,
+                digest_every=plan.spec.knowledge.digest_every,
+                push=plan.spec.knowledge.push,
             )
             exchange.sock = _TapSocket(exchange.sock, self.rec)
             self.agents.append(Agent(i, spec, NotConnected(spec.name), exchange, feed))
@@ -314,7 +272,11 @@ class Controller:
         spec = a.spec
         try:
             vehicle = await self.connector.connect(
-                spec.connection, spec.sysid, name=spec.name, autopilot=spec.autopilot, timeout=self.plan.connect_timeout
+                spec.connection,
+                spec.sysid,
+                name=spec.name,
+                autopilot=spec.autopilot,
+                timeout=self.plan.spec.timing.connect_timeout,
             )
         except InputError as exc:
             a.error = str(exc)
@@ -355,10 +317,11 @@ class Controller:
             if self.stopping:
                 return
             self._state(a, PREFLIGHT)
-            await self._until_stopped(a.vehicle.wait_ready(plan.ready_timeout))
+            await self._until_stopped(a.vehicle.wait_ready(plan.spec.timing.ready_timeout))
             battery = a.battery()
-            if battery is not None and battery < plan.min_battery:
-                raise MavlinkError(f"{a.name}: battery {battery} % is below the {plan.min_battery} % needed to start")
+            needed = plan.spec.battery.takeoff_min
+            if battery is not None and battery < needed:
+                raise MavlinkError(f"{a.name}: battery {battery} % is below the {needed} % needed to start")
             home = a.vehicle.home
             if home is None:
                 raise MavlinkError(f"{a.name}: no home position")
@@ -371,12 +334,14 @@ class Controller:
                 if self.stopping:
                     return
                 self._state(a, TAKEOFF)
-                await self._until_stopped(a.vehicle.arm_and_takeoff(plan.altitude, plan.takeoff_timeout))
+                await self._until_stopped(
+                    a.vehicle.arm_and_takeoff(plan.spec.mission.altitude, plan.spec.timing.takeoff_timeout)
+                )
                 if self.stopping:
                     return
                 # the first cell: the home cell, or the nearest free one nobody holds yet
                 cell = self._nearest_free(start, exclude=a)
-                await self._fly(a, cell, plan.takeoff_timeout)
+                await self._fly(a, cell, plan.spec.timing.takeoff_timeout)
             a.cell = cell
             await self._sense_and_share(a, moved=True, since=0.0)
             self._state(a, SEARCH)
@@ -456,7 +421,7 @@ class Controller:
         lat, lon = self.grid.cell_to_latlon(*cell)
         await a.vehicle.goto(lat, lon, self.guard.setpoint_altitude())
         # wait until reached, but give up at once when the link is lost or the mission is stopped
-        task = asyncio.ensure_future(a.vehicle.wait_reached(self.plan.reach_tolerance, timeout))
+        task = asyncio.ensure_future(a.vehicle.wait_reached(self.plan.spec.flight.reach_tolerance, timeout))
         try:
             while not task.done():
                 if a.vehicle.lost or self.stopping:
@@ -478,7 +443,7 @@ class Controller:
         found: list[tuple[int, int]] = []
         if moved and a.cell is not None:
             report = await a.feed.wait_report(
-                a.cell, since, self.plan.sense_timeout, abort=lambda: a.vehicle.lost or self.stopping
+                a.cell, since, self.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or self.stopping
             )
             if report is None:
                 self.rec.event("no_report", vehicle=a.name, cell=a.cell, step=self.step)
@@ -530,7 +495,7 @@ class Controller:
                     # complete when every vehicle is hovering on a target; partial when some dropped out
                     self.outcome = "complete" if len(live) == len(self.agents) else "partial"
                     return
-            if time.monotonic() - self.search_started > plan.time_limit:
+            if time.monotonic() - self.search_started > plan.spec.timing.time_limit:
                 self.outcome = "time limit"
                 return
             moved = await self._round()
@@ -539,7 +504,7 @@ class Controller:
             if self.view is not None:
                 self.view(self)
             # nobody moved (all staying or waiting): do not spin faster than 10 rounds a second
-            wait = max(plan.step_period, 0.0 if moved else 0.1) - (time.monotonic() - t0)
+            wait = max(plan.spec.timing.step_period, 0.0 if moved else 0.1) - (time.monotonic() - t0)
             if wait > 0:
                 try:
                     await asyncio.wait_for(self._stop.wait(), wait)
@@ -564,7 +529,7 @@ class Controller:
         """Onboard mode: every vehicle of the mission flown by another process is known (through the
         knowledge channel) to hover on a target of its own. Always true in ground mode."""
         mine = {a.cell for a in self.agents if a.state == HOVER}
-        for v in range(len(self.plan.vehicles)):
+        for v in range(len(self.plan.spec.vehicles)):
             if self._ours(v):
                 continue
             known = [a.knowledge.positions.get(v) for a in self.agents]
@@ -595,7 +560,7 @@ class Controller:
                 a.cell = None
                 continue
             battery = a.battery()
-            if a.state == SEARCH and battery is not None and battery < self.plan.low_battery:
+            if a.state == SEARCH and battery is not None and battery < self.plan.spec.battery.return_below:
                 self._state(a, LOW_BATTERY, battery=battery)
                 a.end_action = "rtl"
                 asyncio.ensure_future(self._quietly(a.vehicle.rtl()))
@@ -623,12 +588,12 @@ class Controller:
                 await a.vehicle.resume()
             else:
                 if self.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
-                    await self._until_stopped(a.vehicle.wait_ready(plan.ready_timeout))
+                    await self._until_stopped(a.vehicle.wait_ready(plan.spec.timing.ready_timeout))
                     if a.vehicle.home is None:
                         raise MavlinkError(f"{a.name}: no home position")
                     await self._upload_fence(a, a.vehicle.home)
                 async with self._takeoff:
-                    await a.vehicle.arm_and_takeoff(plan.altitude, plan.takeoff_timeout)
+                    await a.vehicle.arm_and_takeoff(plan.spec.mission.altitude, plan.spec.timing.takeoff_timeout)
             pos = a.vehicle.position
             here = self.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
             if here is None or not self.grid.in_grid(*here):
@@ -637,7 +602,7 @@ class Controller:
             cell = self._nearest_free(here, exclude=a)
             a.cell = cell
             since = time.monotonic()
-            await self._fly(a, cell, plan.step_timeout * 3)
+            await self._fly(a, cell, plan.spec.timing.step_timeout * 3)
             await self._sense_and_share(a, moved=True, since=since)
             self._state(a, SEARCH, rejoined=True)
         except asyncio.CancelledError:
@@ -655,7 +620,7 @@ class Controller:
         plan = self.plan
         searching = [a for a in self.agents if a.state == SEARCH]
         t = time.monotonic()
-        choices = self.policy.choose([a.knowledge for a in searching], self.step, len(plan.vehicles))
+        choices = self.policy.choose([a.knowledge for a in searching], self.step, len(plan.spec.vehicles))
         self.decide_times.append(time.monotonic() - t)
         proposed = {
             a.index: (a.cell[0] + int(MOVES[c.move][0]), a.cell[1] + int(MOVES[c.move][1]))
@@ -700,7 +665,7 @@ class Controller:
             if c.by:  # the move came from a planner, not from the Q-values recorded
                 records[-1]["by"] = c.by
         since = time.monotonic()
-        reached = await asyncio.gather(*(self._fly(a, cell, plan.step_timeout) for a, cell in moves))
+        reached = await asyncio.gather(*(self._fly(a, cell, plan.spec.timing.step_timeout) for a, cell in moves))
         waited = time.monotonic() - since
         for (a, cell), ok in zip(moves, reached):
             if not ok:
@@ -753,7 +718,7 @@ class Controller:
         if a.state == OVERRIDE:
             a.end_state = f"pilot ({a.vehicle.mode})"
             return
-        action = plan.end_action
+        action = plan.spec.mission.end_action
         if action == "hover" and a.state != HOVER:
             action = "rtl"  # only vehicles on a target hold; the others come home
         if a.state == LOW_BATTERY:
@@ -765,8 +730,8 @@ class Controller:
                 await a.vehicle.land()
             elif action == "rtl":
                 await a.vehicle.rtl()
-            if action in ("land", "rtl") and plan.end_timeout > 0:
-                await a.vehicle.wait_landed(plan.end_timeout)
+            if action in ("land", "rtl") and plan.spec.timing.end_timeout > 0:
+                await a.vehicle.wait_landed(plan.spec.timing.end_timeout)
                 a.end_state = "landed at home" if action == "rtl" else "landed"
             else:
                 a.end_state = "hovering on target" if a.state == HOVER else "hovering"
@@ -838,13 +803,13 @@ class Controller:
                 )
             )
         links = [
-            dict(connection=k, sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
+            dict(connection=str(k), sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
             for k, v in self.links.items()
         ]
         hovering = [a.cell for a in self.agents if a.state == HOVER or a.end_state == "hovering on target"]
         out = dict(
-            mission=self.plan.name,
-            policy=self.plan.policy,
+            mission=self.plan.spec.mission.name,
+            policy=self.plan.policy.spec,
             outcome=self.outcome,
             targets_found=[
                 dict(cell=list(c), lat=self.grid.cell_to_latlon(*c)[0], lon=self.grid.cell_to_latlon(*c)[1], step=s)

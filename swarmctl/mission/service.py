@@ -1,4 +1,4 @@
-"""Running a mission from the command line: mission file -> plan, signals, the live view, the picture."""
+"""Running a mission from the command line: the plan described, signals, the live view, the picture."""
 
 from __future__ import annotations
 
@@ -11,10 +11,9 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, InputError
-from swarmctl.mission.config import MissionConfig
-from swarmctl.mission.controller import HOVER, Controller, MissionPlan
-from swarmctl.mission.decide import FieldPolicy
+from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from swarmctl.mission.controller import HOVER, Controller
+from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 
 OUTCOME_EXIT = {
@@ -26,129 +25,33 @@ OUTCOME_EXIT = {
 }
 
 
-def load_grid(cfg: MissionConfig) -> Any:
-    from swarmctl.geo.grid import GeoGrid, make_grid
-
-    if cfg.grid is not None:
-        return GeoGrid.load(cfg.grid)
-    from swarmctl.geo.areas import load_area
-    from swarmctl.geo.buildings import load_buildings
-
-    area = load_area(cfg.area)
-    buildings = load_buildings(cfg.buildings) if cfg.buildings is not None else None
-    grid, _report = make_grid(area, cell=cfg.cell_size, altitude=cfg.altitude, buildings=buildings)
-    return grid
-
-
-def channel_address(value: str | None, where: str) -> tuple[str, int]:
-    """The knowledge channel (udpout:HOST:PORT) as a (host, port) to send to."""
-    if value is None:
-        return ("127.0.0.1", 14600)
-    return udpout_address(
-        value,
-        where,
-        "the knowledge channel is a UDP address the agents send to",
-        "udpout:127.0.0.1:14600",
-        "a MAVLink router or radio",
-    )
-
-
-def udpout_address(value: str, where: str, what: str, example: str, hint: str) -> tuple[str, int]:
-    """udpout:HOST:PORT as (host, port); InputError naming `where` otherwise."""
-    from swarmctl.mavlink.codec import parse_connection
-
-    ep = parse_connection(value, field=where)
-    if ep.kind != "udpout":
-        raise InputError(f'{where} = {value!r}: {what}; write for example "{example}" ({hint})')
-    return (ep.host, int(ep.port))
-
-
-def gcs_address(value: str | None, where: str) -> tuple[str, int] | None:
-    """The ground station to forward the vehicles' MAVLink to, if any."""
-    if value is None:
-        return None
-    return udpout_address(
-        value,
-        where,
-        "the ground station is a UDP address to send to",
-        "udpout:127.0.0.1:14550",
-        "QGroundControl listens there",
-    )
-
-
-def plan_from_config(
-    cfg: MissionConfig, only: list[str] | None = None, detector: str | None = None, seed: int = 0
-) -> MissionPlan:
-    """A MissionPlan from a validated mission file; `only` keeps some vehicles (onboard mode)."""
-    from swarmctl.mavlink.codec import load_signing_key
-
-    grid = load_grid(cfg)
-    key = load_signing_key(cfg.signing_key, field=f"{cfg.path}: mission.signing_key") if cfg.signing_key else None
-    FieldPolicy(cfg.policy)  # refuses policies that cannot fly (with the fix), before anything flies
-    names = [v.name for v in cfg.vehicles]
-    keep = list(range(len(names)))
-    if only:
-        for n in only:
-            if n not in names:
-                raise InputError(f"--vehicle {n!r} is not in {cfg.path}; use one of {', '.join(names)}")
-        keep = [names.index(n) for n in only]
-    detectors = {i: parse_detector(cfg.vehicles[i].detector) for i in keep if cfg.vehicles[i].detector}
-    if detector:
-        detectors.update({i: parse_detector(detector) for i in keep})
-    plan = MissionPlan(
-        name=cfg.name,
-        mission_id=cfg.mission_id,
-        grid=grid,
-        vehicles=list(cfg.vehicles),
-        policy=cfg.policy,
-        altitude=float(cfg.altitude),
-        step_period=float(cfg.step_period),
-        step_timeout=float(cfg.step_timeout),
-        time_limit=float(cfg.time_limit),
-        end_action=cfg.end_action,
-        signing_key=key,
-        knowledge_peer=channel_address(cfg.knowledge_channel, f"{cfg.path}: knowledge.channel"),
-        digest_every=cfg.digest_every,
-        seed=seed,
-        grid_file=cfg.grid,
-        mission_file=cfg.path,
-        only=keep if only else None,
-        detectors=detectors,
-        gcs=gcs_address(cfg.gcs, f"{cfg.path}: mission.gcs"),
-        fence=cfg.fence,
-    )
-    return plan
-
-
-def parse_detector(value: str) -> tuple[str, int]:
-    host, _, port = value.removeprefix("udp:").rpartition(":")
-    try:
-        number = int(port)
-    except ValueError:
-        number = -1
-    if not host or not 0 < number < 65536:
-        raise InputError(f"--detector {value!r}: write udp:HOST:PORT, e.g. udp:127.0.0.1:14650")
-    return host, number
-
-
 def describe(plan: MissionPlan) -> list[str]:
-    g = plan.grid
+    """The plan in a few lines, for the pilot to confirm before anything flies."""
+    g, spec = plan.grid, plan.spec
+    m = spec.mission
+    above = (
+        f" (above the {g.altitude:g} m the grid was planned for: it blocks every building of {g.altitude:g} m "
+        "or more, though the vehicles clear the lower of them)"
+        if m.altitude > g.altitude
+        else ""
+    )
     lines = [
-        f"mission {plan.name!r} (id {plan.mission_id}), policy {plan.policy}",
+        f"mission {m.name!r} (id {m.id}), policy {plan.policy.spec}",
         f"grid {g.width} x {g.height} cells of {g.cell:g} m, {int(g.blocked.sum())} blocked"
-        + (f", from {plan.grid_file}" if plan.grid_file else ""),
-        f"altitude {plan.altitude:g} m above home, end action {plan.end_action}, time limit {plan.time_limit:g} s",
+        + (f", from {m.grid}" if m.grid else ""),
+        f"altitude {m.altitude:g} m above home{above}",
+        f"end action {m.end_action}, time limit {spec.timing.time_limit:g} s",
+        f"sensor footprint {m.footprint_m:g} m round each cell reached ({plan.fov:g} cells)",
         "fence: the area's boundary, uploaded to every vehicle before take-off"
-        if plan.fence
+        if m.fence
         else "fence: none (the vehicles' own fence settings apply)",
-        f"knowledge channel udp:{plan.knowledge_peer[0]}:{plan.knowledge_peer[1]}"
-        if plan.knowledge_peer
-        else "knowledge channel: default",
+        f"knowledge channel {spec.knowledge.channel}",
     ]
-    for i, v in enumerate(plan.vehicles):
+    for i, v in enumerate(spec.vehicles):
         if plan.only is not None and i not in plan.only:
             continue
-        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {v.autopilot}, {v.connection}")
+        autopilot = v.autopilot or "autopilot as its heartbeat says"
+        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}")
     return lines
 
 
@@ -198,7 +101,7 @@ def run_controller(
 ) -> tuple[int, dict]:
     """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording; exit status."""
     rec = Recorder(folder)
-    rec.copy_inputs(plan.mission_file, plan.grid_file, plan.grid)
+    rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
     controller = Controller(plan, rec, view=view)
 
     async def main() -> str:

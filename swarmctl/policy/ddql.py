@@ -68,7 +68,8 @@ class DDQLPolicy:
         self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
-        self.settings = ObservationSettings.from_world(self.info["world"])  # as it was trained
+        # as it was trained (the window of the network itself)
+        self.settings = replace(ObservationSettings.from_world(self.info["world"]), window=self.net.window)
         self.seed = 0
         self.frontier = FrontierPolicy()
 

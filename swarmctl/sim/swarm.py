@@ -15,10 +15,12 @@ from typing import Any
 import numpy as np
 
 from swarmctl.geo.fence import farthest_metres, fence_polygon
-from swarmctl.mission.config import VehicleSpec
-from swarmctl.mission.controller import MissionPlan
+from swarmctl.mavlink.autopilots.base import autopilot_named
+from swarmctl.mavlink.codec import Endpoint
+from swarmctl.mission.plan import MissionPlan, make_plan
+from swarmctl.mission.spec import DEMO_SETTINGS, MissionSpec, VehicleSpec
 from swarmctl.sim.autopilot import MockAutopilot
-from swarmctl.sim.detector import SimDetector
+from swarmctl.sim.detector import FOV_CELLS, SimDetector
 from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
 
@@ -79,7 +81,8 @@ class SimSwarm:
     uavs: int = 3
     seed: int = 0
     speedup: float = 20.0
-    altitude: float = 40.0
+    altitude: float | None = None  # metres above home; None: the grid's
+    fov: float | None = None  # the detectors' sensing radius in cells; None: the policy's, set by plan()
     mission_id: int = 7
     targets: np.ndarray | None = None
     autopilots: list[str] | None = None
@@ -92,7 +95,6 @@ class SimSwarm:
     mocks: list[MockAutopilot] = field(default_factory=list)
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
-    detector_ports: dict[int, tuple[str, int]] = field(default_factory=dict)
     radio: Radio | None = None
     _fence: list[tuple[float, float]] | None = field(default=None, repr=False)
 
@@ -110,10 +112,11 @@ class SimSwarm:
                 lat, lon = self.grid.cell_to_latlon(*cell)
                 autopilot = self.autopilots[i]
                 sysid = i + 1
-                if autopilot == "px4":
+                detector = None
+                if autopilot_named(autopilot).own_connection:  # a PX4: MAVSDK on a UDP port of its own
                     port = free_udp_port()
                     connect, connection = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
-                    self.detector_ports[i] = ("127.0.0.1", free_udp_port())
+                    detector = ("127.0.0.1", free_udp_port())
                 else:
                     connect, connection = "udpin:127.0.0.1:0", None
                 mock = MockAutopilot(
@@ -127,10 +130,16 @@ class SimSwarm:
                     speed=self.speed,
                     seed=self.seed * 1000 + i,
                 )
-                if autopilot == "ardupilot":
+                if "FENCE_RADIUS" in mock.params:  # ArduPilot's circle fence round home
                     mock.params["FENCE_RADIUS"] = self._fence_radius(lat, lon)
                 det = SimDetector(
-                    self.grid, self.targets, i, self.mission_id, self.altitude, udp=self.detector_ports.get(i)
+                    self.grid,
+                    self.targets,
+                    i,
+                    self.mission_id,
+                    self.grid.altitude if self.altitude is None else self.altitude,
+                    fov=FOV_CELLS if self.fov is None else self.fov,
+                    udp=detector,
                 )
                 det.attach(mock)
                 self.detectors.append(det)
@@ -138,7 +147,15 @@ class SimSwarm:
                 self.mocks.append(mock)
                 if connection is None:
                     connection = f"udpout:127.0.0.1:{mock.local_port}"
-                self.specs.append(VehicleSpec(f"uav{sysid}", connection, sysid, autopilot))
+                self.specs.append(
+                    VehicleSpec(
+                        name=f"uav{sysid}",
+                        connection=connection,
+                        sysid=sysid,
+                        autopilot=autopilot,
+                        detector=None if detector is None else f"udp:{detector[0]}:{detector[1]}",
+                    )
+                )
         except BaseException:
             self.stop()
             raise
@@ -152,25 +169,28 @@ class SimSwarm:
         reach = farthest_metres(self._fence, lat, lon)
         return float(max(300, math.ceil(reach / 50.0) * 50))
 
-    def plan(self, policy: str, **kw: Any) -> MissionPlan:
+    def plan(self, policy: Any, base: MissionSpec | None = None, **settings: Any) -> MissionPlan:
+        """The plan that flies this swarm (see `sim_plan`); its detectors then sense at the plan's
+        altitude and fov."""
         assert self.radio is not None, "start() the swarm first"
-        kw.setdefault("time_limit", 300.0)
-        kw.setdefault("step_period", 0.0)
-        kw.setdefault("step_timeout", 10.0)
-        kw.setdefault("end_timeout", 60.0)
-        kw.setdefault("telemetry_hz", 20.0)
-        return MissionPlan(
-            name="demo",
-            mission_id=self.mission_id,
-            grid=self.grid,
-            vehicles=list(self.specs),
-            policy=policy,
-            altitude=self.altitude,
-            knowledge_peer=self.radio.address,
+        if self.altitude is not None:
+            settings.setdefault("altitude", self.altitude)
+        if self.fov is not None:
+            settings.setdefault("footprint_m", self.fov * self.grid.cell)
+        plan = sim_plan(
+            self.grid,
+            self.specs,
+            self.radio.address,
+            policy,
+            base=base,
             seed=self.seed,
-            detectors=dict(self.detector_ports),
-            **kw,
+            mission_id=self.mission_id,
+            **settings,
         )
+        self.fov = plan.fov
+        for d in self.detectors:
+            d.altitude, d.fov = plan.spec.mission.altitude, plan.fov
+        return plan
 
     def stop(self) -> None:
         for m in self.mocks:
@@ -185,3 +205,36 @@ class SimSwarm:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def sim_plan(
+    grid: Any,
+    vehicles: list[VehicleSpec],
+    radio: tuple[str, int],
+    policy: Any,
+    /,
+    *,
+    base: MissionSpec | None = None,
+    seed: int = 0,
+    mission_id: int = 7,
+    mission_file: Any = None,
+    **settings: Any,
+) -> MissionPlan:
+    """The plan for simulated vehicles on `grid` sharing through the loopback radio at `radio`:
+    `base`'s settings (a mission file's; else the defaults) under DEMO_SETTINGS under `settings`
+    (flat spec keys: time_limit, end_action, altitude, fence, grid: the grid's file, for the
+    recording). `policy` is a FieldPolicy or its spec string (built here, once)."""
+    if isinstance(policy, str):
+        from swarmctl.mission.decide import FieldPolicy
+
+        policy = FieldPolicy(policy, seed=seed)
+    own = dict(
+        name=base.mission.name if base else "demo",
+        id=mission_id,
+        policy=policy.spec,
+        channel=Endpoint("udpout", radio[0], int(radio[1])),
+        signing_key=None,  # the mock vehicles do not sign
+    )
+    where = str(mission_file) if mission_file is not None else "demo"
+    spec = MissionSpec.build(vehicles, base, where, **{**DEMO_SETTINGS, **own, **settings})
+    return make_plan(spec, grid=grid, policy=policy, seed=seed, mission_file=mission_file)

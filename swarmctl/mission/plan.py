@@ -1,0 +1,171 @@
+"""The mission plan: a spec made concrete for one process, checked against its grid and its policy.
+
+`make_plan` is the one step from a MissionSpec to what the controller flies. It
+
+- loads the grid (the spec's grid file, or plans one from its area at the spec's altitude and cell
+  size) and fills in what the spec left out: altitude and cell size from the grid, the sensor
+  footprint from the policy's fov, knowledge push from the swarm's size;
+- refuses a mission flying below the grid's planning altitude (the grid blocks only the buildings at
+  least that tall) or with a cell size other than the grid's, and a footprint more than 0.25 cell
+  from the fov the policy was trained with;
+- builds the policy once (loading its checkpoint): the plan keeps the object, the controller uses it.
+
+The plan's spec is the resolved one: every value the controller reads is in it, once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from swarmctl.errors import InputError
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
+from swarmctl.mavlink.codec import Endpoint
+from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
+
+FOOTPRINT_TOLERANCE = 0.25  # cells: how far the footprint may be from the policy's fov
+
+
+@dataclass
+class MissionPlan:
+    """Everything the controller needs to fly: the resolved spec, the grid, the policy (built once) and
+    what this process adds: the vehicles it flies (`only`, mission indices; None: all), their detector
+    sockets, the seed of the policy's draws, and the mission file (copied into the recording)."""
+
+    spec: MissionSpec
+    grid: Any  # swarmctl.geo.GeoGrid
+    policy: Any  # swarmctl.mission.decide.FieldPolicy
+    signing_key: bytes | None = None
+    detectors: dict[int, Endpoint] = field(default_factory=dict)  # vehicle index -> local UDP socket
+    only: list[int] | None = None
+    seed: int = 0
+    mission_file: Path | None = None
+
+    @property
+    def fov(self) -> float:
+        """The sensing radius in cells: the footprint at the mission's cell size."""
+        m = self.spec.mission
+        return float(m.footprint_m) / float(m.cell_size)
+
+
+def make_plan(
+    spec: MissionSpec,
+    *,
+    grid: Any = None,
+    policy: Any = None,
+    only: list[str] | None = None,
+    detector: str | None = None,
+    seed: int = 0,
+    mission_file: Path | None = None,
+) -> MissionPlan:
+    """The plan for `spec`: `grid` and `policy` when the caller has them already (the demo), else
+    loaded here; `only` keeps some vehicles by name (onboard mode); `detector` (udp:HOST:PORT) is the
+    detector socket of every vehicle kept. Every refusal is an InputError naming the mission file."""
+    where = str(mission_file) if mission_file is not None else "mission"
+    m = spec.mission
+    grid = grid if grid is not None else load_grid(spec)
+    altitude, cell = _check_grid(m, grid, where)
+    if policy is None:
+        policy = make_policy(m.policy, seed, where)
+    footprint = _check_footprint(m.footprint_m, cell, policy, where)
+    push = spec.knowledge.push if spec.knowledge.push is not None else len(spec.vehicles) <= PUSH_UP_TO
+    resolved = spec.model_copy(
+        update=dict(
+            mission=m.model_copy(update=dict(altitude=altitude, cell_size=cell, footprint_m=footprint)),
+            knowledge=spec.knowledge.model_copy(update=dict(push=push)),
+        )
+    )
+    names = [v.name for v in spec.vehicles]
+    for name in only or []:
+        if name not in names:
+            raise InputError(f"--vehicle {name!r} is not in {where}; use one of {', '.join(names)}")
+    keep = [names.index(n) for n in only] if only else list(range(len(names)))
+    detectors = {i: spec.vehicles[i].detector for i in keep if spec.vehicles[i].detector is not None}
+    if detector:
+        socket = parse_detector(detector)
+        detectors.update({i: socket for i in keep})
+    key = None
+    if m.signing_key is not None:
+        from swarmctl.mavlink.codec import load_signing_key
+
+        key = load_signing_key(m.signing_key, field=f"{where}: mission.signing_key")
+    return MissionPlan(
+        resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
+    )
+
+
+def load_grid(spec: MissionSpec) -> Any:
+    """The spec's grid file, or a grid planned from its area at its altitude and cell size."""
+    from swarmctl.geo.grid import GeoGrid, make_grid
+
+    m = spec.mission
+    if m.grid is not None:
+        return GeoGrid.load(m.grid)
+    if m.area is None:
+        raise ValueError("the spec names neither grid nor area: give make_plan the grid")
+    from swarmctl.geo.areas import load_area
+    from swarmctl.geo.buildings import load_buildings
+
+    buildings = load_buildings(m.buildings) if m.buildings is not None else None
+    grid, _report = make_grid(
+        load_area(m.area),
+        cell=m.cell_size if m.cell_size is not None else DEFAULT_CELL,
+        altitude=m.altitude if m.altitude is not None else DEFAULT_ALTITUDE,
+        buildings=buildings,
+    )
+    return grid
+
+
+def make_policy(text: str, seed: int, where: str) -> Any:
+    """The FieldPolicy for `text` (a checkpoint is loaded here); its InputError names the mission key."""
+    from swarmctl.mission.decide import FieldPolicy
+
+    try:
+        return FieldPolicy(text, seed=seed)
+    except InputError as exc:
+        raise InputError(f"{where}: mission.policy: {exc}") from None
+
+
+def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
+    """The altitude and cell size to fly: the mission's, checked against the grid's, or the grid's."""
+    name = f"the grid {m.grid.name}" if m.grid is not None else "the grid"
+    for key, what, value, option in (
+        ("altitude", "an altitude", grid.altitude, "--altitude"),
+        ("cell_size", "a cell size", grid.cell, "--cell"),
+    ):
+        lo, hi = MissionTable.bounds(key)
+        if getattr(m, key) is None and not lo <= value <= hi:
+            raise InputError(
+                f"{where}: {name} has {what} of {value:g} m, outside the {lo:g} to {hi:g} m a mission takes; "
+                f"re-plan it with `swarmctl plan ... {option} N` within that range"
+            )
+    altitude = float(grid.altitude) if m.altitude is None else m.altitude
+    if altitude < grid.altitude:
+        raise InputError(
+            f"{where}: mission.altitude = {altitude:g} is below the {grid.altitude:g} m {name} was planned for "
+            f"(buildings from {altitude:g} m to {grid.altitude:g} m tall are not blocked in it); re-plan with "
+            f"`swarmctl plan ... --altitude {altitude:g}`, or fly at the grid's altitude (leave altitude out)"
+        )
+    if m.cell_size is not None and not math.isclose(m.cell_size, grid.cell, rel_tol=1e-9):
+        raise InputError(
+            f"{where}: mission.cell_size = {m.cell_size:g} differs from the {grid.cell:g} m cells of {name}; "
+            f"leave cell_size out (it comes from the grid), or re-plan with `swarmctl plan ... --cell {m.cell_size:g}`"
+        )
+    return altitude, float(grid.cell)
+
+
+def _check_footprint(footprint: float | None, cell: float, policy: Any, where: str) -> float:
+    """The footprint radius in metres: the policy's fov at this cell size, or the mission's when it
+    is within FOOTPRINT_TOLERANCE cell of it."""
+    fov = float(policy.fov)
+    if footprint is None:
+        return fov * cell
+    if abs(footprint / cell - fov) > FOOTPRINT_TOLERANCE:
+        raise InputError(
+            f"{where}: mission.footprint_m = {footprint:g} is {footprint / cell:.2f} cells of {cell:g} m, but the "
+            f"policy {policy.spec} was trained to sense {fov:g} cells; write footprint_m = {fov * cell:g} "
+            f"(or leave it out), or fly a policy trained with a fov of {footprint / cell:.2f} cells"
+        )
+    return footprint

@@ -1,0 +1,514 @@
+"""The mission spec: every setting of a mission, validated once, with its default in one place.
+
+A mission file is TOML with the tables below (the keys, types, defaults and ranges are listed in
+docs/mission.md, generated from this module: `python -m swarmctl.mission.spec --write docs/mission.md`):
+
+    [mission]
+    name = "chicago-loop"
+    id = 7                          # mission id carried by knowledge messages (0..65535)
+    grid = "grid.npz"               # a grid from `swarmctl plan`, or: area = "area.geojson" (+ buildings)
+    policy = "ddql:../../models/obstacles-3uav.pt:straggler=frontier"
+    end_action = "rtl"              # land | rtl | hover
+
+    [timing]                        # step_period, step_timeout, time_limit and the waits of each stage
+    [flight]                        # take-off spacing, reach tolerance, telemetry rate
+    [battery]                       # the charge needed to start and the one that sends a vehicle home
+    [knowledge]                     # the knowledge channel and its digests
+
+    [[vehicles]]
+    name = "alpha"
+    connection = "udpin:0.0.0.0:14551"
+    sysid = 1
+
+Every number is finite and range-checked, types are strict (no true for a number, no "40" for 40),
+unknown keys are refused with the known ones, and every problem is one InputError line: the file,
+the key, the value, the rule and the fix. Relative paths are relative to the mission file.
+Connections are parsed here, once, into `swarmctl.mavlink.codec.Endpoint`.
+
+The file's altitude, cell size and sensor footprint may be left out; the plan (swarmctl.mission.plan)
+fills them in from the grid and the policy, once, and checks them against both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tomllib
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    PlainValidator,
+    TypeAdapter,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+from swarmctl.errors import InputError
+from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
+from swarmctl.mavlink.autopilots import AUTOPILOT_NAMES
+from swarmctl.mavlink.codec import Endpoint, parse_connection
+from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_table, replace_between, table_of_key
+
+MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
+END_ACTIONS = ("land", "rtl", "hover")
+PUSH_UP_TO = 12  # knowledge push is on for swarms of up to this many vehicles (see [knowledge] push)
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # names become parts of recording folder names
+NAME_SPAN = "letters, digits, . _ - (up to 64)"
+# The demo's settings over the defaults (and over a mission file's, with `swarmctl demo --mission`): the
+# simulated world is fast and its vehicles are always there, so decide at once, give up a step sooner,
+# ask for telemetry often, wait less for the landings.
+DEMO_SETTINGS = dict(time_limit=300.0, step_period=0.0, step_timeout=10.0, end_timeout=60.0, telemetry_hz=20.0)
+DOC_BEGIN, DOC_END = "<!-- mission-spec:begin -->", "<!-- mission-spec:end -->"
+
+
+# --- value types: files and connections -------------------------------------------------------------
+
+
+def _file(value: Any, info: ValidationInfo) -> Path:
+    if isinstance(value, Path):
+        text = str(value)
+    elif isinstance(value, str) and value:
+        text = value
+    else:
+        raise SpecError("must be a file path string", "write the path in quotes, relative to the mission file")
+    base = (info.context or {}).get("base", Path.cwd())
+    path = (Path(base) / text).resolve()
+    if not path.is_file():
+        raise SpecError("names a file that does not exist", "fix the path (relative to the mission file)")
+    return path
+
+
+FilePath = Annotated[Path, PlainValidator(_file), PlainSerializer(str, when_used="json")]
+
+
+def _connection(
+    kinds: tuple[str, ...], rule: str, key: str, example: str, hint: str = "", port_zero: bool = False
+) -> Any:
+    """An Endpoint type taking a connection string of one of `kinds` (and port 0 only with
+    `port_zero`); `rule`, with `key = example` as the fix, when not."""
+
+    def parse(value: Any) -> Endpoint:
+        fix = f'write for example {key} = "{example}"{hint}'
+        if isinstance(value, Endpoint):
+            endpoint = value
+        elif isinstance(value, str):
+            try:
+                endpoint = parse_connection(value)
+            except InputError as exc:
+                why, _, _ = str(exc).removeprefix(f"connection {value!r}: ").partition("; ")
+                raise SpecError(why, fix, example=example + hint) from None
+        else:
+            raise SpecError("must be a connection string", fix, example=example + hint)
+        if endpoint.kind not in kinds or (endpoint.kind != "serial" and endpoint.port == 0 and not port_zero):
+            raise SpecError(rule, fix, example=example + hint)
+        return endpoint
+
+    return Annotated[Endpoint, PlainValidator(parse), PlainSerializer(str, when_used="json")]
+
+
+VehicleLink = _connection(
+    ("udpin", "udpout", "tcp", "serial"),
+    "is not a MAVLink connection",
+    "connection",
+    "udpin:0.0.0.0:14551",
+    " (udpin, udpout, tcp HOST:PORT or a serial DEVICE:BAUD)",
+    port_zero=True,  # udpin port 0: any free port (tests)
+)
+SendTo = _connection(
+    ("udpout",), "is not a UDP address to send to", "channel", "udpout:127.0.0.1:14600", " (a MAVLink router or radio)"
+)
+GroundStation = _connection(
+    ("udpout",), "is not a UDP address to send to", "gcs", "udpout:127.0.0.1:14550", " (QGroundControl listens there)"
+)
+DetectorSocket = _connection(("udpin",), "is not a local UDP socket", "detector", "udp:127.0.0.1:14650")
+
+
+def parse_option(kind: Any, text: str, option: str) -> Any:
+    """A command-line value parsed as the spec parses keys of this type (GroundStation,
+    DetectorSocket, ...); InputError names the option."""
+    try:
+        return TypeAdapter(kind).validate_python(text)
+    except ValidationError as exc:
+        cause = (exc.errors()[0].get("ctx") or {}).get("error")
+        if not isinstance(cause, SpecError):
+            raise InputError(f"{option} {text!r}: not valid here") from None
+        raise InputError(f"{option} {text!r}: {cause.rule}; give for example {option} {cause.example}") from None
+
+
+def parse_detector(text: str, option: str = "--detector") -> Endpoint:
+    """A detector socket given on the command line (udp:HOST:PORT)."""
+    return parse_option(DetectorSocket, text, option)
+
+
+# --- the tables ----------------------------------------------------------------------------------------
+
+
+def setting(
+    default: Any,
+    meaning: str,
+    *,
+    ge: float | None = None,
+    le: float | None = None,
+    unit: str = "",
+    example: Any = None,
+    default_text: str | None = None,
+    span: str | None = None,
+    **extra: Any,
+) -> Any:
+    """A spec field: its default, meaning (the doc line), range (ge, le, unit; or `span`, the forms a
+    value takes), an example for the fix, and `default_text` when the default is worked out later."""
+    schema = {"unit": unit, "example": example, "default_text": default_text, "span": span}
+    return Field(
+        default,
+        ge=ge,
+        le=le,
+        description=meaning,
+        json_schema_extra={k: v for k, v in schema.items() if v not in (None, "")},
+        **extra,
+    )
+
+
+class Table(BaseModel):
+    """One table of the mission file: strict types, finite numbers, no unknown keys, immutable."""
+
+    model_config = ConfigDict(strict=True, extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @classmethod
+    def bounds(cls, key: str) -> tuple[Any, Any]:
+        """The range (lowest, highest) of a number key."""
+        return bounds(cls.model_fields[key])
+
+
+class MissionTable(Table):
+    """[mission]: what is searched, how high, with which policy, and how it ends."""
+
+    name: str = setting(
+        ...,
+        "the mission's name, in the recording",
+        pattern=NAME_PATTERN,
+        span=NAME_SPAN,
+        example="chicago-loop",
+        default_text="the file's name",
+    )
+    id: int = setting(
+        1, "mission id carried by every knowledge message (two swarms on one channel never mix)", ge=0, le=65535
+    )
+    grid: FilePath | None = setting(None, "a grid file from `swarmctl plan` (give grid or area)", example="grid.npz")
+    area: FilePath | None = setting(
+        None,
+        "a search area (GeoJSON, KML, .plan) to grid at the mission's altitude and cell size",
+        example="area.geojson",
+    )
+    buildings: FilePath | None = setting(
+        None, "building footprints to block (with area only)", example="buildings.geojson"
+    )
+    cell_size: float | None = setting(
+        None,
+        "cell size; given with grid, it must be the grid's",
+        ge=1.0,
+        le=1000.0,
+        unit="metres",
+        example=DEFAULT_CELL,
+        default_text=f"the grid's cell_size_m; with area, {DEFAULT_CELL:g}",
+    )
+    altitude: float | None = setting(
+        None,
+        "flight altitude; never below the grid's planning altitude (its blocked buildings are those "
+        "at least that tall), above it is allowed and said",
+        ge=2.0,
+        le=500.0,
+        unit="metres above home",
+        example=DEFAULT_ALTITUDE,
+        default_text=f"the grid's altitude_m; with area, {DEFAULT_ALTITUDE:g}",
+    )
+    footprint_m: float | None = setting(
+        None,
+        "radius of the disc the sensor covers round each cell reached; footprint_m / cell_size must be "
+        "within 0.25 cell of the policy's fov (the one it was trained with)",
+        ge=0.5,
+        le=5000.0,
+        unit="metres",
+        example=30.0,
+        default_text="the policy's fov x cell_size",
+    )
+    policy: str = setting(
+        ...,
+        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier or random (PATH relative to the mission file)",
+        min_length=1,
+        example="frontier",
+    )
+    end_action: Literal[END_ACTIONS] = setting(
+        "rtl", "at the end: land, rtl, or hover (vehicles on a target hold, the others come home)"
+    )
+    signing_key: FilePath | None = setting(
+        None,
+        "32-byte MAVLink 2 signing key file shared with the vehicles",
+        example="swarm.key",
+        default_text="none: unsigned",
+    )
+    gcs: GroundStation | None = setting(
+        None,
+        "forward the vehicles' MAVLink to this ground station",
+        span="udpout:HOST:PORT",
+        example="udpout:127.0.0.1:14550",
+        default_text="none",
+    )
+    fence: bool = setting(False, "upload the area's boundary (plus one cell) to every vehicle as its geofence")
+
+    @field_validator("policy")
+    @classmethod
+    def _model_path(cls, value: str, info: ValidationInfo) -> str:
+        """A ddql model path, resolved relative to the mission file; it must exist (the plan loads it)."""
+        kind, _, rest = value.strip().partition(":")
+        if kind not in ("ddql", "ddql-greedy") or not rest:
+            return value.strip()
+        from swarmctl.policy.ddql import split_options
+
+        model, options = split_options(rest)
+        path = (Path((info.context or {}).get("base", Path.cwd())) / model).resolve()
+        if not path.is_file():
+            raise SpecError(
+                f"names the model {model!r}, which does not exist", "fix the path (relative to the mission file)"
+            )
+        return f"{kind}:{path}{options}"
+
+    @model_validator(mode="after")
+    def _grid_or_area(self) -> MissionTable:
+        if self.grid is not None and self.area is not None:
+            raise SpecError(
+                "is given together with area", "give either grid (from `swarmctl plan`) or area", ("grid",), self.grid
+            )
+        if self.buildings is not None and self.area is None:
+            raise SpecError(
+                "needs area",
+                "give area with buildings, or plan a grid with `swarmctl plan --buildings`",
+                ("buildings",),
+                self.buildings,
+            )
+        return self
+
+
+class TimingTable(Table):
+    """[timing]: the pace of the search and how long each stage may take."""
+
+    step_period: float = setting(1.0, "time between decisions, at least", ge=0.0, le=60.0, unit="seconds")
+    step_timeout: float = setting(
+        30.0, "time to reach the next cell before the step is given up", ge=0.1, le=600.0, unit="seconds"
+    )
+    time_limit: float = setting(900.0, "time for the whole search", ge=1.0, le=86400.0, unit="seconds")
+    connect_timeout: float = setting(20.0, "wait for a vehicle's first heartbeat", ge=0.1, le=600.0, unit="seconds")
+    ready_timeout: float = setting(
+        60.0,
+        "wait for a vehicle to be ready to arm (position, home, pre-arm checks)",
+        ge=0.1,
+        le=3600.0,
+        unit="seconds",
+    )
+    takeoff_timeout: float = setting(
+        120.0, "wait for a take-off to reach the altitude and the first cell", ge=1.0, le=3600.0, unit="seconds"
+    )
+    sense_timeout: float = setting(
+        5.0, "wait for the detector's report after reaching a cell", ge=0.0, le=60.0, unit="seconds"
+    )
+    end_timeout: float = setting(
+        180.0, "wait for the vehicles to land after the end action (0: do not wait)", ge=0.0, le=3600.0, unit="seconds"
+    )
+
+
+class FlightTable(Table):
+    """[flight]: how the vehicles are flown."""
+
+    takeoff_at_once: int = setting(
+        1, "vehicles climbing at the same time (1: one after the other)", ge=1, le=250, unit="vehicles"
+    )
+    reach_tolerance: float = setting(
+        0.5, "distance from a cell centre that counts as arrived", ge=0.05, le=50.0, unit="metres"
+    )
+    telemetry_hz: float = setting(
+        5.0, "GLOBAL_POSITION_INT rate asked of ArduPilot vehicles", ge=0.2, le=50.0, unit="Hz"
+    )
+
+
+class BatteryTable(Table):
+    """[battery]: charge thresholds, in % of a full battery as the vehicle reports it."""
+
+    takeoff_min: int = setting(30, "charge a vehicle needs in preflight to start", ge=0, le=100, unit="%")
+    return_below: int = setting(15, "charge below which a searching vehicle is sent home (RTL)", ge=0, le=100, unit="%")
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BatteryTable:
+        if self.return_below > self.takeoff_min:
+            raise SpecError(
+                f"is above takeoff_min = {self.takeoff_min}, so vehicles would be sent home as they start",
+                "make return_below at most takeoff_min",
+                ("return_below",),
+                self.return_below,
+            )
+        return self
+
+
+class KnowledgeTable(Table):
+    """[knowledge]: how the agents share what they know (TUNNEL messages)."""
+
+    channel: SendTo = setting(
+        Endpoint("udpout", "127.0.0.1", 14600),
+        "where the agents send their TUNNEL messages (a MAVLink router or radio that forwards them to every agent)",
+        span="udpout:HOST:PORT",
+    )
+    digest_every: int = setting(5, "steps between digests of what an agent knows", ge=1, le=1000, unit="steps")
+    push: bool | None = setting(
+        None,
+        "send the cells a peer's digest lacks at once (with many vehicles on one channel every digest "
+        "sets off a push from each receiver)",
+        example=True,
+        default_text=f"on for up to {PUSH_UP_TO} vehicles",
+    )
+
+
+class VehicleSpec(Table):
+    """[[vehicles]]: one vehicle of the swarm; its index in the list is its index in the mission."""
+
+    name: str = setting(..., "the vehicle's name", pattern=NAME_PATTERN, span=NAME_SPAN, example="alpha")
+    connection: VehicleLink = setting(
+        ...,
+        "its MAVLink connection",
+        span="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, DEVICE:BAUD",
+        example="udpin:0.0.0.0:14551",
+    )
+    sysid: int = setting(..., "its MAVLink system id, SYSID_THISMAV; unique in the swarm", ge=1, le=250, example=1)
+    autopilot: Literal[AUTOPILOT_NAMES] | None = setting(
+        None,
+        "the firmware it must run; a vehicle whose heartbeat says otherwise is refused",
+        example="ardupilot",
+        default_text="as its heartbeat says",
+    )
+    detector: DetectorSocket | None = setting(
+        None,
+        "a local socket its detector reports to",
+        span="udp:HOST:PORT",
+        example="udp:127.0.0.1:14650",
+        default_text="its MAVLink link",
+    )
+
+
+class MissionSpec(Table):
+    """A whole mission file."""
+
+    mission: MissionTable = setting(..., "a [mission] table with at least policy and grid or area")
+    timing: TimingTable = Field(default_factory=TimingTable, description="timing")
+    flight: FlightTable = Field(default_factory=FlightTable, description="flight")
+    battery: BatteryTable = Field(default_factory=BatteryTable, description="battery")
+    knowledge: KnowledgeTable = Field(default_factory=KnowledgeTable, description="knowledge sharing")
+    vehicles: list[VehicleSpec] = setting(
+        ..., "one [[vehicles]] table per vehicle (name, connection, sysid)", min_length=1, max_length=250
+    )
+
+    @model_validator(mode="after")
+    def _distinct_vehicles(self) -> MissionSpec:
+        for i, v in enumerate(self.vehicles):
+            for other in self.vehicles[:i]:
+                if other.name == v.name:
+                    raise SpecError(
+                        "is listed twice", "give every vehicle its own name", ("vehicles", i, "name"), v.name
+                    )
+                if other.sysid == v.sysid:
+                    raise SpecError(
+                        f"is also the system id of {other.name!r}",
+                        "system ids must be unique in a swarm (SYSID_THISMAV)",
+                        ("vehicles", i, "sysid"),
+                        v.sysid,
+                    )
+        return self
+
+    @classmethod
+    def build(
+        cls, vehicles: list[VehicleSpec], base: MissionSpec | None = None, where: str = "mission", **settings: Any
+    ) -> MissionSpec:
+        """A spec made in code (the demo): `base`'s tables (or the defaults) with `settings` (flat key
+        names, each routed to its table; None puts a key back to its default) and `vehicles`,
+        validated like a file; InputError names `where`."""
+        data: dict[str, Any] = {t: dict(getattr(base, t)) if base else {} for t in SETTING_TABLES}
+        for key, value in settings.items():
+            if key not in TABLE_OF:
+                raise TypeError(f"{key!r} is not a mission setting")
+            if value is None:
+                data[TABLE_OF[key]].pop(key, None)
+            else:
+                data[TABLE_OF[key]][key] = value
+        data["vehicles"] = list(vehicles)
+        return validate(data, where)
+
+
+TABLES: dict[str, type[Table]] = {
+    "mission": MissionTable,
+    "timing": TimingTable,
+    "flight": FlightTable,
+    "battery": BatteryTable,
+    "knowledge": KnowledgeTable,
+    "vehicles": VehicleSpec,
+}
+SETTING_TABLES = tuple(t for t in TABLES if t != "vehicles")
+TABLE_OF = table_of_key(MissionSpec)  # a setting's flat name -> its table
+if len(TABLE_OF) != sum(len(TABLES[t].model_fields) for t in SETTING_TABLES):
+    raise RuntimeError("two tables of the mission spec have a key of the same name")
+
+
+# --- reading and errors ----------------------------------------------------------------------------------
+
+
+def load_spec(path: str | Path) -> MissionSpec:
+    """Read and validate a mission file; every problem is an InputError of one line."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such mission file")
+    with path.open("rb") as fh:
+        raw = fh.read(MAX_BYTES + 1)
+    if len(raw) > MAX_BYTES:
+        raise InputError(f"{path}: over {MAX_BYTES // 1000} kB, too large for a mission file; give the mission's TOML")
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file; a mission file is TOML") from None
+    except tomllib.TOMLDecodeError as exc:
+        why = " ".join(str(exc).split())
+        raise InputError(f"{path}: not valid TOML ({why}); fix the syntax there") from None
+    mission = data.get("mission")
+    if isinstance(mission, dict) and "name" not in mission:
+        mission["name"] = re.sub(r"[^A-Za-z0-9_.-]", "-", path.stem).lstrip("-_.") or "mission"
+    spec = validate(data, str(path), base=path.resolve().parent)
+    if spec.mission.grid is None and spec.mission.area is None:
+        raise InputError(f"{path}: mission.grid is missing; give grid (from `swarmctl plan`) or area")
+    return spec
+
+
+def validate(data: dict, where: str, base: Path | None = None) -> MissionSpec:
+    """A MissionSpec from parsed TOML (or the same shape in code); InputError names `where`."""
+    try:
+        return MissionSpec.model_validate(data, context={"base": base} if base is not None else None)
+    except ValidationError as exc:
+        raise InputError(f"{where}: {explain(exc.errors()[0], MissionSpec)}") from None
+
+
+def main(argv: list[str] | None = None) -> None:
+    """`python -m swarmctl.mission.spec --markdown | --write docs/mission.md`."""
+    ap = argparse.ArgumentParser(description="The mission file's keys, as a Markdown table.")
+    ap.add_argument("--markdown", action="store_true", help="print the table")
+    ap.add_argument("--write", type=Path, help="replace the table between the markers in this file")
+    args = ap.parse_args(argv)
+    if args.write:
+        changed = replace_between(args.write, DOC_BEGIN, DOC_END, markdown_table(MissionSpec))
+        print(f"{args.write}: {'updated' if changed else 'already up to date'}")
+    if args.markdown or not args.write:
+        sys.stdout.write(markdown_table(MissionSpec) + "\n")
+
+
+if __name__ == "__main__":
+    main()
