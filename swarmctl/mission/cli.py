@@ -138,6 +138,7 @@ def demo_command(
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
     from swarmctl.mission.service import LiveView, draw_mission, gcs_address, run_controller
+    from swarmctl.replay.truth import write_truth
     from swarmctl.sim.swarm import SimSwarm
 
     if not 1 <= uavs <= 50:
@@ -192,6 +193,7 @@ def demo_command(
                 f"{', geofence on' if fence else ''} -> {folder}",
                 err=True,
             )
+        write_truth(folder, swarm, seed)
         code, summary = run_controller(
             plan,
             folder,
