@@ -20,13 +20,15 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import shapely
 
 from swarmctl.errors import InputError
+from swarmctl.geo.buildings import load_buildings
 from swarmctl.geo.grid import GeoGrid
 from swarmctl.replay import knowledge as kmod
 from swarmctl.replay.fit import grid_around, grid_from_cells
 from swarmctl.replay.lines import Lines, read_lines
-from swarmctl.replay.telemetry import VehicleTelemetry, read_telemetry
+from swarmctl.replay.telemetry import GEOD, VehicleTelemetry, path_m, read_telemetry
 from swarmctl.replay.tlog import Damage, TlogIndex, index_tlog
 from swarmctl.replay.truth import TRUTH_FILE, Truth, load_truth
 from swarmctl.world.moves import MOVE_NAMES, MOVES
@@ -74,11 +76,8 @@ class Vehicle:
         """Horizontal distance flown: from telemetry when there is some, else between step cells."""
         if self.telemetry is not None and self.telemetry.lat.size >= 2:
             return self.telemetry.distance_m()
-        from swarmctl.replay.telemetry import GEOD
-
         ok = np.isfinite(self.track_lat)
-        lat, lon = self.track_lat[ok], self.track_lon[ok]
-        return float(np.sum(GEOD.inv(lon[:-1], lat[:-1], lon[1:], lat[1:])[2])) if lat.size >= 2 else 0.0
+        return path_m(self.track_lat[ok], self.track_lon[ok])
 
     def link(self, end: float) -> list[tuple[float, str]]:
         """(time, "ok" | "lost") changes: recorded link events when there are some, else heartbeats."""
@@ -461,10 +460,6 @@ class _Loader:
                 if path is not None:
                     raise InputError(f"--buildings {p}: file not found; give a GeoJSON of building footprints")
                 continue
-            import shapely
-
-            from swarmctl.geo.buildings import load_buildings
-
             lat, lon = g.corner_latlon()
             box = shapely.box(lon.min(), lat.min(), lon.max(), lat.max())
             replay.buildings = [b.geometry for b in load_buildings(p).buildings if b.geometry.intersects(box)]
@@ -570,8 +565,6 @@ def _modes_at(tel: VehicleTelemetry, times: np.ndarray) -> list[str]:
 
 def _still_points(tel: VehicleTelemetry) -> list[tuple[float, float, float]]:
     """(time, lat, lon) where an airborne vehicle stayed within HOVER_STILL_M for HOVER_MIN_S or more."""
-    from swarmctl.replay.telemetry import GEOD
-
     out = []
     t, lat, lon, alt = tel.pos_t, tel.lat, tel.lon, tel.alt
     i, n = 0, t.size

@@ -60,11 +60,7 @@ class VehicleTelemetry:
 
     def distance_m(self) -> float:
         """Horizontal distance flown (while above AIRBORNE_M), metres."""
-        if self.lat.size < 2:
-            return 0.0
-        up = (self.alt[1:] > AIRBORNE_M) | (self.alt[:-1] > AIRBORNE_M)
-        d = GEOD.inv(self.lon[:-1], self.lat[:-1], self.lon[1:], self.lat[1:])[2]
-        return float(np.sum(np.where(up, d, 0.0)))
+        return path_m(self.lat, self.lon, self.alt > AIRBORNE_M)
 
     def position_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lat, lon, alt) of the last fix at or before each time (NaN before the first)."""
@@ -76,6 +72,17 @@ class VehicleTelemetry:
         ok = i >= 0
         j = np.clip(i, 0, None)
         return (np.where(ok, self.lat[j], np.nan), np.where(ok, self.lon[j], np.nan), np.where(ok, self.alt[j], np.nan))
+
+
+def path_m(lat: np.ndarray, lon: np.ndarray, airborne: np.ndarray | None = None) -> float:
+    """Length in metres (on the WGS84 ellipsoid) of a path of points; with `airborne`, only the legs
+    that start or end in the air count."""
+    if lat.size < 2:
+        return 0.0
+    d = GEOD.inv(lon[:-1], lat[:-1], lon[1:], lat[1:])[2]
+    if airborne is not None:
+        d = np.where(airborne[1:] | airborne[:-1], d, 0.0)
+    return float(np.sum(d))
 
 
 def _enum_name(enum: str, value: int) -> str:
