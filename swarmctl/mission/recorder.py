@@ -135,7 +135,7 @@ class Recorder:
                 "cells": cells,
                 "targets": sorted([int(x), int(y)] for x, y in kn.targets),
             }
-            lines.append(json.dumps(_jsonable(record), separators=(",", ":")) + "\n")
+            lines.append(json.dumps(record, separators=(",", ":")) + "\n")  # plain values already
         if not lines:
             return 0
         with self._lock:
