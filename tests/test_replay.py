@@ -160,3 +160,20 @@ def test_bad_options_are_one_line_and_exit_2(demo, tmp_path, capsys, extra, need
     assert main(["replay", str(demo), "--out", str(tmp_path / "x"), "--quiet", *extra]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and needle in err and "Traceback" not in err
+
+
+def test_a_recording_without_its_tlog_replays_from_the_events_alone(demo, tmp_path):
+    """As for PX4 vehicles, whose own link belongs to MAVSDK and is not in the tlog."""
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(demo, rec, ignore=shutil.ignore_patterns("mission.tlog", "replay"))
+    replay = load(rec)
+    assert replay.tlog is None and replay.knowledge.source == "snapshots"
+    assert all(v.track_source == "steps" and v.telemetry is None for v in replay.vehicles)
+    out = tmp_path / "out"
+    assert main(["replay", str(rec), "--out", str(out), "--quiet"]) == 0
+    assert (out / "map.html").is_file() and (out / "explored.png").is_file() and not (out / "battery.png").exists()
+    with_tlog = load(demo)
+    for a, b in zip(replay.vehicles, with_tlog.vehicles):
+        assert np.array_equal(a.cells, b.cells)  # the cells come from the step lines either way
