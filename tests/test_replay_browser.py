@@ -100,3 +100,17 @@ def test_knowledge_of_one_vehicle_is_a_part_of_everyones(browser, page_file):
     page.locator("#knowledge").select_option("none")
     assert "cells explored" not in page.locator("#counts").inner_text()
     assert errors == [] and foreign == []
+
+
+def test_a_page_with_only_the_swarms_knowledge_offers_no_per_vehicle_choice(browser, tmp_path, monkeypatch):
+    from swarmctl.replay import page as page_module
+    from swarmctl.replay.recording import load
+
+    monkeypatch.setattr(page_module, "MAX_KNOWLEDGE_VALUES", 1)  # as for a grid too large to send per vehicle
+    path = page_module.write_page(load(SITL3), tmp_path / "map.html")
+    page, errors, foreign = _open(browser, path)
+    values = page.eval_on_selector_all("#knowledge option", "os => os.map(o => o.value)")
+    assert values == ["all", "none"]
+    page.locator("#slider").fill("25")
+    assert "cells explored" in page.locator("#counts").inner_text()
+    assert errors == [] and foreign == []

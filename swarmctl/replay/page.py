@@ -26,7 +26,7 @@ from swarmctl.replay.page_template import PAGE
 from swarmctl.replay.recording import Replay
 
 MAX_TRACK_POINTS = 1000
-MAX_KNOWLEDGE_VALUES = 8_000_000  # vehicles x cells kept per vehicle; above it only the union is sent
+MAX_KNOWLEDGE_VALUES = 8_000_000  # vehicles x cells; above it the page gets only the union (no per-vehicle choice)
 
 
 def _rings(wkt: str) -> list[list[list[float]]]:

@@ -172,7 +172,7 @@ label { display: block; margin: 3px 0; }
   }
   if (first) {
     option("all", "all vehicles together");
-    D.vehicles.forEach(function (v, i) { option(String(i), v.name); });
+    if (KV === D.vehicles.length) D.vehicles.forEach(function (v, i) { option(String(i), v.name); });
   }
   option("none", "none");
   let exploredCache = { key: null, image: null, count: 0 };
