@@ -19,6 +19,7 @@ from swarmctl.bench import bench_command  # noqa: E402
 from swarmctl.geo.cli import plan_command  # noqa: E402
 from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
 from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
+from swarmctl.replay.cli import replay_command  # noqa: E402
 from swarmctl.sim.cli import mock_vehicle_command  # noqa: E402
 
 for command in (
@@ -30,6 +31,7 @@ for command in (
     demo_command,
     fly_command,
     agent_command,
+    replay_command,
 ):
     cli.add_command(command)
 

@@ -147,6 +147,7 @@ def demo_command(
     from swarmctl.mission.plan import load_grid
     from swarmctl.mission.service import LiveView, draw_mission, run_controller
     from swarmctl.mission.spec import GroundStation, load_spec, parse_option
+    from swarmctl.replay.truth import write_truth
     from swarmctl.sim.swarm import SimSwarm
 
     if not 1 <= uavs <= 50:
@@ -199,6 +200,7 @@ def demo_command(
                 f"{', geofence on' if plan.spec.mission.fence else ''} -> {folder}",
                 err=True,
             )
+        write_truth(folder, swarm, seed)
         code, summary = run_controller(
             plan,
             folder,

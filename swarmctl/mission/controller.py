@@ -685,6 +685,7 @@ class Controller:
         self.rec.event(
             "step", step=self.step, vehicles=records, others=others, decide_ms=round(self.decide_times[-1] * 1000, 3)
         )
+        self.rec.knowledge(self.step, [(a.name, a.knowledge) for a in self.agents])
         return bool(moves)
 
     # --- the end ---------------------------------------------------------------------------------------

@@ -7,29 +7,35 @@ mission.tlog     every MAVLink packet the controller sent or received (vehicle l
 events.jsonl     one JSON object per line: state changes, link events, guard refusals and one
                  "step" record per decision step (each vehicle's cell, observation digest,
                  Q-values, chosen and guarded move, knowledge received)
+knowledge.jsonl  one "knowledge" line per vehicle and step: the cells it has explored and the
+                 targets it knows of after the round (only when they changed since its last line)
 mission.toml     a copy of the mission file (when there is one)
 grid.npz         a copy of the grid
 summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
+
+Every line's fields, types and units: swarmctl.mission.events (docs/recording.md).
 """
 
 from __future__ import annotations
 
+import base64
 import json
 import shutil
 import struct
 import threading
 import time
+import zlib
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
+import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 _TS = struct.Struct(">Q")
 
 
 def _jsonable(value: Any) -> Any:
-    import numpy as np
-
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -54,6 +60,8 @@ class Recorder:
         self._lock = threading.Lock()
         self._tlog = (self.folder / "mission.tlog").open("wb")
         self._events = (self.folder / "events.jsonl").open("w", encoding="utf-8")
+        self._knowledge: IO[str] | None = None  # knowledge.jsonl, opened with the first snapshot
+        self._known: dict[str, tuple[int, int]] = {}  # vehicle -> (cells, targets) of its last snapshot
         self._parser = mavlink2.MAVLink(None)
         self._parser.robust_parsing = True
         self.packets = 0
@@ -107,11 +115,44 @@ class Recorder:
             self._events.write(line + "\n")
             self.events += 1
 
+    def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
+        """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
+        since its last line (knowledge only grows, so the counts tell); returns how many were written."""
+        lines = []
+        for name, kn in views:
+            cells, targets = int(np.count_nonzero(kn.explored)), len(kn.targets)
+            with self._lock:
+                if self._known.get(name) == (cells, targets):
+                    continue
+                self._known[name] = (cells, targets)
+            packed = zlib.compress(np.packbits(np.asarray(kn.explored, dtype=bool).reshape(-1)).tobytes(), 6)
+            record = {
+                "t": time.time(),
+                "event": "knowledge",
+                "step": int(step),
+                "vehicle": name,
+                "explored": base64.b64encode(packed).decode("ascii"),
+                "cells": cells,
+                "targets": sorted([int(x), int(y)] for x, y in kn.targets),
+            }
+            lines.append(json.dumps(record, separators=(",", ":")) + "\n")  # plain values already
+        if not lines:
+            return 0
+        with self._lock:
+            if self.closed:
+                return 0
+            if self._knowledge is None:
+                self._knowledge = (self.folder / "knowledge.jsonl").open("w", encoding="utf-8")
+            self._knowledge.write("".join(lines))
+        return len(lines)
+
     def flush(self) -> None:
         with self._lock:
             if not self.closed:
                 self._tlog.flush()
                 self._events.flush()
+                if self._knowledge is not None:
+                    self._knowledge.flush()
 
     # --- files -----------------------------------------------------------------------------------------
     def copy_inputs(self, mission_file: Path | None, grid_file: Path | None, grid: Any = None) -> None:
@@ -134,3 +175,5 @@ class Recorder:
             self.closed = True
             self._tlog.close()
             self._events.close()
+            if self._knowledge is not None:
+                self._knowledge.close()

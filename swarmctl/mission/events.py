@@ -1,0 +1,363 @@
+"""The recording's event schema: every kind of line in events.jsonl and knowledge.jsonl, every field,
+its type and unit, in one table.
+
+The recorder writes these lines, `swarmctl replay` reads them back through `check_event`, and
+docs/recording.md shows the tables `schema_markdown()` renders from this module (a test keeps the two
+the same). Readers are lenient: fields this table does not name are allowed (a newer recorder may add
+some) and kinds it does not name are skipped; `check_event(..., strict=True)` also refuses those, so
+a test can hold a fresh recording to the table.
+
+Field kinds: `int`, `number` (int or float), `str`, `bool`, `cell` ([x, y] grid indices, ints >= 0),
+`cells` (a list of cells), `latlon` ([lat, lon] degrees), `latlons` (a list of them), `numbers`,
+`strs`, and `records NAME` (a list of objects following the record schema NAME below).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from swarmctl.world.moves import MOVE_NAMES
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field of an event or record: name, kind (module docstring), unit, meaning."""
+
+    name: str
+    kind: str
+    unit: str
+    doc: str
+    required: bool = True
+    nullable: bool = False
+    values: tuple[str, ...] | None = None  # the strings allowed, when the field is an enumeration
+
+
+AGENT_STATES = (
+    "connect",
+    "preflight",
+    "takeoff",
+    "search",
+    "hover",
+    "lost",
+    "rejoin",
+    "override",
+    "low battery",
+    "ended",
+    "failed",
+)  # the controller's agent states (swarmctl.mission.controller; a test keeps the two the same)
+
+_T = Field("t", "number", "s", "wall-clock time the line was written, seconds since 1970-01-01 UTC")
+_VEHICLE = Field("vehicle", "str", "-", "the vehicle's name (mission file `[[vehicles]] name`)")
+_SYSID = Field("sysid", "int", "-", "the vehicle's MAVLink system id")
+_STEP = Field("step", "int", "steps", "decision round number: 1 for the first round; 0 before the first")
+
+RECORDS: dict[str, tuple[str, tuple[Field, ...]]] = {
+    "step vehicle": (
+        "one searching vehicle in a `step` line",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("cell", "cell", "cells", "where the vehicle was when the round decided (before its move)"),
+            Field(
+                "obs",
+                "str",
+                "-",
+                "observation digest: the first 16 hex digits of the sha1 of the 3 x F x F float32 observation "
+                "(ddql policies; null for planners)",
+                nullable=True,
+            ),
+            Field("q", "numbers", "-", "the network's Q-values of stay, north, east, south, west", nullable=True),
+            Field("move", "str", "-", "the move the policy chose", values=MOVE_NAMES),
+            Field("guarded", "str", "-", "the move flown after the safety guard", values=MOVE_NAMES),
+            Field("refused", "str", "-", "why the guard refused the move (null: not refused)", nullable=True),
+            Field("received", "int", "messages", "knowledge messages the vehicle's agent accepted since the last step"),
+            Field(
+                "by",
+                "str",
+                "-",
+                "the planner that chose the move instead of the network (ddql straggler=frontier)",
+                required=False,
+            ),
+        ),
+    ),
+    "step other": (
+        "one vehicle that did not search this round (hovering, lost, rejoining, ended ...) in a `step` line",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("state", "str", "-", "its state at the end of the round", values=AGENT_STATES),
+            Field("cell", "cell", "cells", "its cell at the end of the round (null: none held)", nullable=True),
+            Field("received", "int", "messages", "knowledge messages its agent accepted since the last step"),
+        ),
+    ),
+}
+
+EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
+    "mission": (
+        "events.jsonl",
+        "the first line: what is flown",
+        (
+            Field("name", "str", "-", "mission name"),
+            Field("policy", "str", "-", "the policy spec (`ddql:PATH[:options]`, `frontier`, ...)"),
+            Field("altitude", "number", "m", "flight altitude above home"),
+            Field("end_action", "str", "-", "land, rtl or hover"),
+            Field("grid", "cell", "cells", "grid width and height [W, H]"),
+            Field("vehicles", "strs", "-", "vehicle names in mission order (the order is the vehicle index)"),
+            Field(
+                "fence",
+                "latlons",
+                "deg",
+                "the geofence polygon uploaded to every vehicle (null: no fence)",
+                nullable=True,
+            ),
+        ),
+    ),
+    "state": (
+        "events.jsonl",
+        "a vehicle's state changed (or the same state with new detail)",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("state", "str", "-", "the new state", values=AGENT_STATES),
+            Field("cell", "cell", "cells", "the vehicle's cell then (null: none yet / none held)", nullable=True),
+            Field("last_cell", "cell", "cells", "lost: the last cell it held", required=False, nullable=True),
+            Field("mode", "str", "-", "override: the flight mode the pilot chose", required=False),
+            Field("battery", "int", "%", "low battery: the charge left", required=False),
+            Field("error", "str", "-", "failed: why", required=False),
+            Field("rejoined", "bool", "-", "search: true when the vehicle came back after a link loss", required=False),
+            Field(
+                "end_state", "str", "-", "ended: how it ended (landed at home, hovering on target ...)", required=False
+            ),
+        ),
+    ),
+    "fence": (
+        "events.jsonl",
+        "a vehicle's fence upload (before take-off, and before a grounded vehicle rejoins)",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("uploaded", "bool", "-", "whether the vehicle took the fence"),
+            Field("vertices", "int", "-", "uploaded: the polygon's vertex count", required=False),
+            Field("error", "str", "-", "not uploaded: why", required=False),
+        ),
+    ),
+    "link": (
+        "events.jsonl",
+        "a vehicle's link: first heartbeat, heartbeats stopped (3 s), heartbeats back",
+        (_SYSID, Field("change", "str", "-", "what happened", values=("seen", "lost", "back"))),
+    ),
+    "targets": (
+        "events.jsonl",
+        "targets a vehicle's detector reported for the first time",
+        (
+            _VEHICLE,
+            Field("cells", "cells", "cells", "the target cells"),
+            _STEP,
+            Field("latlon", "latlons", "deg", "the cells' centres, in the order of `cells`"),
+        ),
+    ),
+    "refused": (
+        "events.jsonl",
+        "the safety guard refused a vehicle's move (it stays)",
+        (
+            _VEHICLE,
+            _STEP,
+            Field("cell", "cell", "cells", "where the vehicle was"),
+            Field("proposed", "cell", "cells", "the cell the policy wanted"),
+            Field("reason", "str", "-", "why (outside, blocked, contested ...)"),
+        ),
+    ),
+    "step_timeout": (
+        "events.jsonl",
+        "a vehicle did not reach its cell within the step timeout (the cell stays claimed)",
+        (_VEHICLE, _STEP, Field("cell", "cell", "cells", "the cell it was sent to")),
+    ),
+    "no_report": (
+        "events.jsonl",
+        "no detector report arrived for a cell the vehicle reached (sense timeout)",
+        (_VEHICLE, Field("cell", "cell", "cells", "the cell"), _STEP),
+    ),
+    "step": (
+        "events.jsonl",
+        "one decision round, written when its moves are flown and sensed",
+        (
+            _STEP,
+            Field("vehicles", "records step vehicle", "-", "the vehicles that searched this round"),
+            Field("others", "records step other", "-", "the other vehicles of this process"),
+            Field("decide_ms", "number", "ms", "time the policy took for the round (every vehicle at once)"),
+        ),
+    ),
+    "end": (
+        "events.jsonl",
+        "the search ended",
+        (
+            Field(
+                "outcome",
+                "str",
+                "-",
+                "how",
+                values=("complete", "partial", "time limit", "failed", "interrupted"),
+            ),
+            Field("step", "int", "steps", "rounds flown"),
+        ),
+    ),
+    "end_action": (
+        "events.jsonl",
+        "the end action a vehicle was given",
+        (
+            _VEHICLE,
+            Field("action", "str", "-", "land, rtl, hover, or `none: link lost`"),
+            Field("cell", "cell", "cells", "its cell then", required=False, nullable=True),
+        ),
+    ),
+    "end_action_failed": (
+        "events.jsonl",
+        "a vehicle's end action failed",
+        (_VEHICLE, Field("error", "str", "-", "why")),
+    ),
+    "knowledge": (
+        "knowledge.jsonl",
+        "one vehicle's knowledge after a round, written when it changed since that vehicle's last line",
+        (
+            _STEP,
+            _VEHICLE,
+            Field(
+                "explored",
+                "str",
+                "-",
+                "the explored-cell mask: base64 of zlib of numpy.packbits (big bit order) of the (W, H) bool "
+                "mask flattened x * H + y",
+            ),
+            Field("cells", "int", "cells", "how many cells the mask holds (a check on `explored`)"),
+            Field("targets", "cells", "cells", "the target cells the vehicle knows of"),
+        ),
+    ),
+}
+
+
+class EventError(ValueError):
+    """A line that does not follow the schema (the message names the field)."""
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_number(v: Any) -> bool:
+    return (_is_int(v) or isinstance(v, float)) and math.isfinite(v)
+
+
+def _is_cell(v: Any) -> bool:
+    return isinstance(v, list) and len(v) == 2 and all(_is_int(c) and c >= 0 for c in v)
+
+
+def _is_latlon(v: Any) -> bool:
+    return (
+        isinstance(v, list)
+        and len(v) == 2
+        and all(_is_number(c) for c in v)
+        and -90 <= v[0] <= 90
+        and -180 <= v[1] <= 180
+    )
+
+
+_CHECKS = {
+    "int": _is_int,
+    "number": _is_number,
+    "str": lambda v: isinstance(v, str),
+    "bool": lambda v: isinstance(v, bool),
+    "cell": _is_cell,
+    "cells": lambda v: isinstance(v, list) and all(_is_cell(c) for c in v),
+    "latlon": _is_latlon,
+    "latlons": lambda v: isinstance(v, list) and all(_is_latlon(c) for c in v),
+    "numbers": lambda v: isinstance(v, list) and all(_is_number(c) for c in v),
+    "strs": lambda v: isinstance(v, list) and all(isinstance(c, str) for c in v),
+}
+
+
+def _check_fields(obj: dict, fields: tuple[Field, ...], where: str, strict: bool) -> None:
+    for f in fields:
+        if f.name not in obj:
+            if f.required:
+                raise EventError(f"{where}: field {f.name!r} is missing")
+            continue
+        value = obj[f.name]
+        if value is None:
+            if not f.nullable:
+                raise EventError(f"{where}: field {f.name!r} is null")
+            continue
+        if f.kind.startswith("records "):
+            sub = RECORDS[f.kind.removeprefix("records ")][1]
+            if not isinstance(value, list):
+                raise EventError(f"{where}: field {f.name!r} is not a list")
+            for i, rec in enumerate(value):
+                if not isinstance(rec, dict):
+                    raise EventError(f"{where}: {f.name}[{i}] is not an object")
+                _check_fields(rec, sub, f"{where}: {f.name}[{i}]", strict)
+            continue
+        if not _CHECKS[f.kind](value):
+            raise EventError(f"{where}: field {f.name!r} is not a {f.kind}: {value!r:.60}")
+        if f.values is not None and value not in f.values:
+            raise EventError(f"{where}: field {f.name!r} = {value!r} is not one of {', '.join(f.values)}")
+    if strict:
+        extra = sorted(set(obj) - {f.name for f in fields} - {"t", "event"})
+        if extra:
+            raise EventError(f"{where}: field(s) {', '.join(extra)} not in the schema")
+
+
+def check_event(obj: Any, strict: bool = False) -> str | None:
+    """Check one parsed line against the schema. Returns its kind, or None for a kind the schema does not
+    name (strict: EventError). Raises EventError naming the field when a known kind breaks the schema."""
+    if not isinstance(obj, dict):
+        raise EventError("the line is not a JSON object")
+    kind = obj.get("event")
+    if not isinstance(kind, str):
+        raise EventError("field 'event' is missing or not a string")
+    if not _is_number(obj.get("t")):
+        raise EventError(f"{kind}: field 't' is missing or not a number")
+    if kind not in EVENTS:
+        if strict:
+            raise EventError(f"event kind {kind!r} is not in the schema")
+        return None
+    _check_fields(obj, EVENTS[kind][2], kind, strict)
+    return kind
+
+
+def _table(fields: tuple[Field, ...]) -> list[str]:
+    rows = ["| field | type | unit | meaning |", "|---|---|---|---|"]
+    for f in fields:
+        kind = f.kind + (" or null" if f.nullable else "") + ("" if f.required else ", optional")
+        doc = f.doc + (f" (one of: {', '.join(f.values)})" if f.values else "")
+        rows.append(f"| `{f.name}` | {kind} | {f.unit} | {doc} |")
+    return rows
+
+
+def schema_markdown() -> str:
+    """The schema as Markdown tables (docs/recording.md holds this text between its schema markers)."""
+    out = [f"Every line has `t` ({_T.unit}: {_T.doc}) and `event` (the kind, below).", ""]
+    for kind, (file, doc, fields) in EVENTS.items():
+        out += [f"#### `{kind}` ({file})", "", doc[0].upper() + doc[1:] + ".", "", *_table(fields), ""]
+    for name, (doc, fields) in RECORDS.items():
+        out += [f"#### record `{name}`", "", doc[0].upper() + doc[1:] + ".", "", *_table(fields), ""]
+    return "\n".join(out).rstrip() + "\n"
+
+
+DOC_START, DOC_END = "<!-- schema: start -->", "<!-- schema: end -->"
+
+
+def with_schema(doc: str) -> str:
+    """`doc` (docs/recording.md) with the text between its schema markers replaced by schema_markdown()."""
+    head, rest = doc.split(DOC_START, 1)
+    _old, tail = rest.split(DOC_END, 1)
+    return f"{head}{DOC_START}\n{schema_markdown()}{DOC_END}{tail}"
+
+
+if __name__ == "__main__":  # python -m swarmctl.mission.events docs/recording.md: refresh the tables
+    import sys
+    from pathlib import Path
+
+    for name in sys.argv[1:]:
+        path = Path(name)
+        path.write_text(with_schema(path.read_text(encoding="utf-8")), encoding="utf-8")

@@ -1,0 +1,1 @@
+"""Offline replay of recorded missions and foreign telemetry logs (`swarmctl replay`)."""

@@ -1,0 +1,168 @@
+"""`swarmctl replay`: a finished mission (or anyone's .tlog) as a map page, pictures, an animation,
+tracks, plots and a summary."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from swarmctl.errors import InputError
+
+
+def _steps(value: str | None) -> list[int] | None:
+    if value is None:
+        return None
+    try:
+        steps = [int(s) for s in value.split(",") if s.strip()]
+    except ValueError:
+        raise InputError(
+            f"--steps {value!r}: give whole step numbers separated by commas, e.g. --steps 0,50,100"
+        ) from None
+    if not steps or min(steps) < 0:
+        raise InputError(f"--steps {value!r}: give step numbers >= 0 separated by commas, e.g. --steps 0,50,100")
+    return steps
+
+
+def _out_dir(path: Path, out: Path | None) -> Path:
+    folder = out if out is not None else (path / "replay" if path.is_dir() else path.with_name(f"{path.stem}-replay"))
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(
+            f"--out {folder}: cannot create it ({exc.strerror}); give --out DIR somewhere writable"
+        ) from None
+    if not os.access(folder, os.W_OK):
+        raise InputError(f"--out {folder}: not writable; give --out DIR somewhere writable")
+    return folder
+
+
+def _check_step(replay, name: str, value: int | None) -> None:
+    if value is None:
+        return
+    if replay.frame_step is not None:
+        top, unit = int(replay.frame_step[-1]), "steps"
+    else:
+        top, unit = int(replay.frame_time[-1] - replay.frame_time[0]), "seconds (this log has no decision steps)"
+    if not 0 <= value <= top:
+        raise InputError(f"{name} {value}: the replay has {unit} 0..{top}")
+
+
+def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]:
+    _check_step(replay, "--from-step", first)
+    _check_step(replay, "--to-step", last)
+    a = replay.frame_of_step(first) if first is not None else 0
+    b = replay.frame_of_step(last) if last is not None else replay.frames - 1
+    if a > b:
+        raise InputError(f"--from-step {first} is after --to-step {last}")
+    return a, b
+
+
+@click.command("replay")
+@click.argument("recording", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Output folder (default: RECORDING/replay, or NAME-replay beside a .tlog).",
+)
+@click.option(
+    "--steps",
+    default=None,
+    help="Steps of the three-panel pictures, e.g. 0,50,100 (default: --from-step and --to-step: the first and "
+    "the last step). A log without decision steps counts seconds from its start.",
+)
+@click.option("--from-step", type=int, default=None, help="First step of the animation (default: the first).")
+@click.option("--to-step", type=int, default=None, help="Last step of the animation (default: the last).")
+@click.option(
+    "--vehicle",
+    "--vehicles",
+    "vehicles",
+    multiple=True,
+    help="Replay only this vehicle (its name, or a system id for a bare .tlog); repeatable. The known map "
+    "shows what the chosen vehicles knew together.",
+)
+@click.option("--fps", type=float, default=10.0, show_default=True, help="Frames per second of the animation.")
+@click.option("--grid", "grid_file", type=click.Path(path_type=Path), default=None, help="grid.npz for a bare .tlog.")
+@click.option(
+    "--buildings",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Building footprints (GeoJSON) to draw on the map (default: the grid's buildings file when it is in the "
+    "recording folder).",
+)
+@click.option(
+    "--basemap",
+    default=None,
+    metavar="URL",
+    help="Tile URL with {z}/{x}/{y} for a background map, e.g. https://tile.openstreetmap.org/{z}/{x}/{y}.png "
+    "(the page then loads tiles from the network; without it the page is fully offline).",
+)
+@click.option("--attribution", default="", help="Attribution text shown with the basemap (e.g. (c) OpenStreetMap).")
+@click.option("--quiet", "-q", is_flag=True, help="Print nothing; no progress bar.")
+def replay_command(
+    recording: Path,
+    out: Path | None,
+    steps: str | None,
+    from_step: int | None,
+    to_step: int | None,
+    vehicles: tuple[str, ...],
+    fps: float,
+    grid_file: Path | None,
+    buildings: Path | None,
+    basemap: str | None,
+    attribution: str,
+    quiet: bool,
+) -> None:
+    """Replay a recording folder (fly, agent, demo) or a .tlog (MAVProxy, QGroundControl, SITL).
+
+    Writes map.html (offline map page with a time slider), panels-step-N.png (positions, known map,
+    true map), animation.gif (and .mp4 with ffmpeg), tracks.geojson / tracks.kml, targets.geojson /
+    targets.kml, the plots and summary.txt. Damaged logs are replayed as far as they can be read, and
+    what was skipped is listed.
+    """
+    from tqdm import tqdm
+
+    from swarmctl.replay import recording as rmod
+    from swarmctl.replay.page import write_page
+    from swarmctl.replay.panels import write_animation, write_panels
+    from swarmctl.replay.plots import write_plots
+    from swarmctl.replay.summary import summary_lines
+    from swarmctl.replay.tracks import write_tracks
+
+    if not 0 < fps <= 60:
+        raise InputError(f"--fps {fps}: give a number of frames per second above 0 and at most 60")
+    if basemap is not None and not all(k in basemap for k in ("{z}", "{x}", "{y}")):
+        raise InputError(f"--basemap {basemap!r}: the tile URL needs {{z}}, {{x}} and {{y}}")
+    wanted = _steps(steps)
+    if not recording.exists():
+        raise InputError(f"{recording}: not found; give a recording folder (fly, agent, demo) or a .tlog file")
+    source = recording / "mission.tlog" if recording.is_dir() else recording
+    size = source.stat().st_size if source.is_file() else 0
+    with tqdm(
+        total=size, unit="B", unit_scale=True, desc="reading", disable=quiet, delay=0.5, leave=False, mininterval=1.0
+    ) as bar:
+        replay = rmod.load(recording, list(vehicles) or None, grid_file, buildings, progress=bar.update)
+    first, last = _frame_range(replay, from_step, to_step)
+    folder = _out_dir(recording, out)
+    for s in wanted or []:
+        _check_step(replay, "--steps", s)
+    panel_frames = [replay.frame_of_step(s) for s in wanted] if wanted is not None else sorted({first, last})
+    written = [write_page(replay, folder / "map.html", basemap, attribution)]
+    written += write_panels(replay, panel_frames, folder)
+    frames = list(range(first, last + 1))
+    with tqdm(
+        total=len(frames), unit="frame", desc="animation", disable=quiet, delay=0.5, leave=False, mininterval=1.0
+    ) as bar:
+        written += write_animation(replay, frames, folder, fps, progress=bar.update)
+    written += write_tracks(replay, folder)
+    written += write_plots(replay, folder)
+    lines = summary_lines(replay)
+    text = folder / "summary.txt"
+    text.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    written.append(text)
+    if not quiet:
+        for line in lines:
+            click.echo(line)
+        click.echo(f"wrote {len(written)} files to {folder}: {', '.join(p.name for p in written)}")
