@@ -145,8 +145,8 @@ def test_a_snapshot_that_does_not_decode_is_skipped_and_named():
 
 
 def test_the_schema_names_every_state_the_controller_records():
-    from swarmctl.mission import controller
+    from swarmctl.mission.agent import TRANSITIONS, State
     from swarmctl.mission.events import AGENT_STATES
 
-    names = ("CONNECT", "PREFLIGHT", "TAKEOFF", "SEARCH", "HOVER", "LOST", "REJOIN", "OVERRIDE", "LOW_BATTERY")
-    assert set(AGENT_STATES) == {getattr(controller, n) for n in (*names, "ENDED", "FAILED")}
+    entered = {s for targets in TRANSITIONS.values() for s in targets}  # every state an agent can move to
+    assert set(AGENT_STATES) == {s.value for s in entered} == {s.value for s in State} - {"new"}

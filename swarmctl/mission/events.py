@@ -18,6 +18,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from swarmctl.mission.agent import State
 from swarmctl.world.moves import MOVE_NAMES
 
 
@@ -34,19 +35,7 @@ class Field:
     values: tuple[str, ...] | None = None  # the strings allowed, when the field is an enumeration
 
 
-AGENT_STATES = (
-    "connect",
-    "preflight",
-    "takeoff",
-    "search",
-    "hover",
-    "lost",
-    "rejoin",
-    "override",
-    "low battery",
-    "ended",
-    "failed",
-)  # the controller's agent states (swarmctl.mission.controller; a test keeps the two the same)
+AGENT_STATES = tuple(s.value for s in State if s is not State.NEW)  # as the controller records them
 
 _T = Field("t", "number", "s", "wall-clock time the line was written, seconds since 1970-01-01 UTC")
 _VEHICLE = Field("vehicle", "str", "-", "the vehicle's name (mission file `[[vehicles]] name`)")

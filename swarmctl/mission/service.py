@@ -12,7 +12,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
-from swarmctl.mission.controller import HOVER, Controller
+from swarmctl.mission.agent import State
+from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 
@@ -71,7 +72,7 @@ class LiveView:
             return
         now = time.monotonic()
         found = len(set().union(*(a.knowledge.targets for a in c.agents))) if c.agents else 0
-        hovering = sum(a.state == HOVER or a.end_state == "hovering on target" for a in c.agents)
+        hovering = sum(a.state is State.HOVER or a.end_state == "hovering on target" for a in c.agents)
         elapsed = now - c.search_started if c.search_started else 0.0
         progress = f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  {elapsed:.1f} s" + (
             f"  -> {c.outcome}" if c.outcome else ""

@@ -1,0 +1,176 @@
+"""One vehicle's agent: its state machine and what the controller keeps about it.
+
+The states and the transitions between them are explicit (`TRANSITIONS`); `Agent.enter` refuses any
+other. What the vehicle's own reports call for (its link lost or back, a pilot taking it over, a low
+battery) is decided by `Agent.next_state`, a pure function of what the agent knows; the controller
+carries out the side effects (cancel a rejoin, send the vehicle home) and the swarm-level ones
+(hovering needs to know what the others hold: swarmctl.mission.rounds).
+
+    new -> connect -> preflight -> takeoff -> search <-> hover
+    search / hover / rejoin -> lost -> rejoin -> search        (link loss and return)
+    search / hover -> override                                 (a pilot's mode)
+    search -> low battery                                      (sent home)
+    any of them -> failed; any but ended -> ended              (the end action was given)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from enum import StrEnum
+from typing import TYPE_CHECKING, Any
+
+from swarmctl.mavlink.codec import distance_m
+
+if TYPE_CHECKING:
+    from swarmctl.knowledge.exchange import KnowledgeExchange
+    from swarmctl.knowledge.model import Knowledge
+    from swarmctl.mission.detector import SensorFeed
+    from swarmctl.mission.spec import VehicleSpec
+
+AIRBORNE_M = 1.0  # a vehicle this high above home (or higher) is flying, not landed
+TRACKING_M = 0.5  # distance flown counts once the vehicle is this high above home
+
+
+class State(StrEnum):
+    """An agent's state; the value is what the recording writes."""
+
+    NEW = "new"
+    CONNECT = "connect"
+    PREFLIGHT = "preflight"
+    TAKEOFF = "takeoff"
+    SEARCH = "search"
+    HOVER = "hover"
+    LOST = "lost"
+    REJOIN = "rejoin"
+    OVERRIDE = "override"
+    LOW_BATTERY = "low battery"
+    FAILED = "failed"
+    ENDED = "ended"
+
+
+_ACTIVE = {State.CONNECT, State.PREFLIGHT, State.TAKEOFF, State.SEARCH, State.HOVER, State.REJOIN}
+TRANSITIONS: dict[State, frozenset[State]] = {
+    State.NEW: frozenset({State.CONNECT}),
+    State.CONNECT: frozenset({State.PREFLIGHT}),
+    State.PREFLIGHT: frozenset({State.TAKEOFF}),
+    State.TAKEOFF: frozenset({State.SEARCH}),
+    State.SEARCH: frozenset({State.HOVER, State.LOST, State.OVERRIDE, State.LOW_BATTERY}),
+    State.HOVER: frozenset({State.LOST, State.OVERRIDE}),
+    State.LOST: frozenset({State.REJOIN}),
+    State.REJOIN: frozenset({State.SEARCH, State.LOST}),
+    State.OVERRIDE: frozenset(),
+    State.LOW_BATTERY: frozenset(),
+    State.FAILED: frozenset(),
+    State.ENDED: frozenset(),
+}
+for _state in State:  # failure from any active state; the end action from anything but the end
+    TRANSITIONS[_state] |= ({State.FAILED} if _state in _ACTIVE else frozenset()) | (
+        frozenset() if _state is State.ENDED else {State.ENDED}
+    )
+
+
+class IllegalTransition(RuntimeError):
+    """A transition the state machine does not have (a bug in the controller, never bad input)."""
+
+
+class Agent:
+    """One vehicle's controller: its Vehicle, Knowledge, exchange, sensor feed, state and counters."""
+
+    def __init__(self, index: int, spec: VehicleSpec, vehicle: Any, exchange: KnowledgeExchange, feed: SensorFeed):
+        self.index, self.spec, self.vehicle = index, spec, vehicle
+        self.exchange, self.feed = exchange, feed
+        self.knowledge: Knowledge = exchange.knowledge
+        self.state = State.NEW
+        self.cell: tuple[int, int] | None = None
+        self.steps = 0
+        self.distance = 0.0
+        self.refused = 0
+        self.timeouts = 0
+        self.end_action: str | None = None
+        self.end_state: str | None = None
+        self.error: str | None = None
+        self._last_fix: tuple[float, float] | None = None
+        self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
+        self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
+        self._accepted = 0
+        self.rejoin_task: asyncio.Task | None = None
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def live(self) -> bool:
+        return self.state in (State.SEARCH, State.HOVER, State.REJOIN)
+
+    @property
+    def targets_known(self) -> int:
+        return len(self.knowledge.targets)
+
+    def enter(self, state: State) -> bool:
+        """Move to `state`; True when it is a change. IllegalTransition for a transition that is not in
+        TRANSITIONS (staying in a state is always allowed)."""
+        if state is self.state:
+            return False
+        if state not in TRANSITIONS[self.state]:
+            raise IllegalTransition(f"{self.name}: no transition from {self.state} to {state}")
+        self.state = state
+        return True
+
+    def next_state(self, low_battery: int, now: float | None = None) -> tuple[State, dict[str, Any]] | None:
+        """The transition the vehicle's own reports call for, with what to record; None: none.
+
+        Link lost (now, or briefly since the agent last looked) -> lost; back -> rejoin; a pilot's mode
+        for the autopilot's debounce time -> override; a battery below `low_battery` % while
+        searching -> low battery."""
+        lost = self.vehicle.lost
+        if self.state in (State.SEARCH, State.HOVER, State.REJOIN) and (lost or self.saw_loss):
+            self.saw_loss = False
+            return State.LOST, {"last_cell": self.cell}
+        if self.state is State.LOST and not lost:
+            return State.REJOIN, {}
+        if self.state in (State.SEARCH, State.HOVER) and self.pilot_has_it(time.monotonic() if now is None else now):
+            return State.OVERRIDE, {"mode": self.vehicle.mode}
+        battery = self.battery()
+        if self.state is State.SEARCH and battery is not None and battery < low_battery:
+            return State.LOW_BATTERY, {"battery": battery}
+        return None
+
+    def pilot_has_it(self, now: float) -> bool:
+        """The pilot took over: the vehicle reports a pilot's mode (its autopilot's is_pilot_mode), and
+        has reported one for the autopilot's mode_debounce_s (a mode report may lag behind the vehicle)."""
+        info = self.vehicle.autopilot_info
+        if info is None or not info.is_pilot_mode(self.vehicle.mode):
+            self.pilot_since = None
+            return False
+        if self.pilot_since is None:
+            self.pilot_since = now
+        return now - self.pilot_since >= info.mode_debounce_s
+
+    def battery(self) -> int | None:
+        try:
+            return self.vehicle.battery_remaining
+        except Exception:
+            return None
+
+    def link_text(self) -> str:
+        try:
+            return "lost" if self.vehicle.lost else "ok"
+        except Exception:
+            return "?"
+
+    def track(self) -> None:
+        """Accumulate the horizontal distance flown from telemetry."""
+        pos = self.vehicle.position
+        if pos is None:
+            return
+        if self._last_fix is not None and pos.rel_alt > TRACKING_M:
+            self.distance += distance_m(self._last_fix[0], self._last_fix[1], pos.lat, pos.lon)
+        self._last_fix = (pos.lat, pos.lon)
+
+    def received_since(self) -> int:
+        """Knowledge messages accepted since the last call."""
+        total = sum(self.exchange.codec.accepted.values())
+        new, self._accepted = total - self._accepted, total
+        return new

@@ -1,0 +1,108 @@
+"""Flying one agent's vehicle to a cell, and sensing and sharing what it sees there.
+
+Used by the launch (the first cell), the rounds (every move) and a rejoin. Every setpoint is a
+guarded cell's centre at the mission altitude (the guard's `setpoint_altitude`).
+"""
+
+from __future__ import annotations
+
+import asyncio
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission.agent import Agent, State
+
+if TYPE_CHECKING:
+    from swarmctl.mission.controller import Controller
+
+_FAR = np.iinfo(np.int64).max
+
+
+def held(c: Controller, exclude: Agent | None = None) -> set[tuple[int, int]]:
+    """The cells vehicles hold: this process's agents (but `exclude`) and the vehicles of other
+    processes known through the knowledge channel."""
+    cells = {a.cell for a in c.agents if a is not exclude and a.cell is not None and a.state is not State.FAILED}
+    for a in c.agents:
+        for v, p in a.knowledge.peers.items():
+            if not c.ours(v) and p.cell is not None:
+                cells.add(p.cell)
+    return cells
+
+
+def nearest_free(c: Controller, start: tuple[int, int], exclude: Agent | None = None) -> tuple[int, int]:
+    """The free cell (not blocked, nobody holds it) nearest to `start`."""
+    taken = held(c, exclude)
+    w, h = c.grid.width, c.grid.height
+    xs, ys = np.meshgrid(np.arange(w), np.arange(h), indexing="ij")
+    d = (xs - start[0]) ** 2 + (ys - start[1]) ** 2
+    d = np.where(c.grid.blocked, _FAR, d).astype(np.int64)
+    for cell in taken:
+        d[cell] = _FAR
+    flat = int(np.argmin(d))
+    if d.flat[flat] == _FAR:
+        raise MavlinkError("no free cell left to fly to")
+    return (flat // h, flat % h)
+
+
+async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float) -> bool:
+    """Send the position target for the cell centre at the mission altitude; wait until reached (False
+    after `timeout`, or at once when the link is lost or the mission is stopped)."""
+    if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
+        raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
+    lat, lon = c.grid.cell_to_latlon(*cell)
+    await a.vehicle.goto(lat, lon, c.guard.setpoint_altitude())
+    task = asyncio.ensure_future(a.vehicle.wait_reached(c.plan.spec.flight.reach_tolerance, timeout))
+    try:
+        while not task.done():
+            if a.vehicle.lost or c.stopping:
+                return False
+            await asyncio.wait({task}, timeout=0.1)
+        return task.exception() is None
+    finally:
+        if not task.done():
+            await cancel(task)
+        elif not task.cancelled() and task.exception() is not None and not isinstance(task.exception(), MavlinkError):
+            raise task.exception()
+
+
+async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
+    """Sense (when the vehicle reached a new cell) and publish; returns the targets it saw."""
+    kn, ex = a.knowledge, a.exchange
+    on_target = a.state is State.HOVER
+    found: list[tuple[int, int]] = []
+    if moved and a.cell is not None:
+        report = await a.feed.wait_report(
+            a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
+        )
+        if report is None:
+            c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)
+            ex.step(c.step, a.cell, on_target)
+        else:
+            found = [tuple(int(v) for v in t) for t in report.targets]
+            fresh = [t for t in found if t not in kn.targets]
+            ex.step(
+                c.step,
+                a.cell,
+                on_target,
+                report.cells,
+                report.phi,
+                report.obstacle,
+                targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
+            )
+            if fresh:
+                latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
+                c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
+    elif a.cell is not None:
+        ex.step(c.step, a.cell, on_target)
+    return found
+
+
+async def cancel(task: asyncio.Future) -> None:
+    """Cancel a task and wait for it to finish (whatever it raises on the way out)."""
+    task.cancel()
+    try:
+        await task
+    except (asyncio.CancelledError, Exception):
+        pass

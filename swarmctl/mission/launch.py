@@ -1,0 +1,150 @@
+"""Getting one agent's vehicle into the search: connect, preflight, fence, take-off, the first cell;
+and back into it after a link loss (rejoin).
+
+Each vehicle goes through these on its own (a slow one delays only itself); take-offs are spaced by
+`flight.takeoff_at_once`. A failure fails that vehicle only, except a vehicle whose autopilot
+contradicts the mission file, which stops the mission (the file must change).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from typing import TYPE_CHECKING, Any
+
+from swarmctl.errors import InputError
+from swarmctl.geo.fence import fence_contains
+from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission.agent import AIRBORNE_M, Agent, State
+from swarmctl.mission.flight import fly, nearest_free, sense_and_share
+
+if TYPE_CHECKING:
+    from swarmctl.mission.controller import Controller
+
+log = logging.getLogger(__name__)
+
+
+async def connect(c: Controller, a: Agent) -> None:
+    """Connect the agent's vehicle with the driver its autopilot reports (see mavlink/connect.py). A
+    vehicle that disagrees with the mission file (AutopilotMismatch, an InputError) stops the mission;
+    the others get their end action."""
+    spec = a.spec
+    try:
+        vehicle = await c.connector.connect(
+            spec.connection,
+            spec.sysid,
+            name=spec.name,
+            autopilot=spec.autopilot,
+            timeout=c.plan.spec.timing.connect_timeout,
+        )
+    except InputError as exc:
+        a.error = str(exc)
+        c.enter(a, State.FAILED, error=a.error)
+        if c.mission_error is None:
+            c.mission_error, c.outcome = exc, "failed"
+        c.stop()
+        return
+    a.vehicle = vehicle
+    vehicle.add_listener(a.feed.listener(spec.sysid))  # the detector's TUNNEL reports, where they come
+
+
+async def start(c: Controller, a: Agent) -> None:
+    """Connect, preflight, (fence,) take off and fly to the first cell; then the agent searches."""
+    timing = c.plan.spec.timing
+    try:
+        c.enter(a, State.CONNECT)
+        await c.until_stopped(connect(c, a))
+        if c.stopping:
+            return
+        c.enter(a, State.PREFLIGHT)
+        await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout))
+        battery = a.battery()
+        needed = c.plan.spec.battery.takeoff_min
+        if battery is not None and battery < needed:
+            raise MavlinkError(f"{a.name}: battery {battery} % is below the {needed} % needed to start")
+        home = a.vehicle.home
+        if home is None:
+            raise MavlinkError(f"{a.name}: no home position")
+        first = c.grid.latlon_to_cell(home.lat, home.lon)
+        if not c.grid.in_grid(*first):
+            raise MavlinkError(f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the grid")
+        if c.fence is not None:
+            await upload_fence(c, a, home)
+        async with c.takeoff_slots:
+            if c.stopping:
+                return
+            c.enter(a, State.TAKEOFF)
+            await c.until_stopped(a.vehicle.arm_and_takeoff(c.plan.spec.mission.altitude, timing.takeoff_timeout))
+            if c.stopping:
+                return
+            # the first cell: the home cell, or the nearest free one nobody holds yet
+            cell = nearest_free(c, first, exclude=a)
+            await fly(c, a, cell, timing.takeoff_timeout)
+        a.cell = cell
+        await sense_and_share(c, a, moved=True, since=0.0)
+        c.enter(a, State.SEARCH)
+    except (TimeoutError, MavlinkError) as exc:
+        a.error = str(exc)
+        c.enter(a, State.FAILED, error=str(exc))
+
+
+async def upload_fence(c: Controller, a: Agent, home: Any) -> None:
+    """The mission's fence to the vehicle, before it takes off (preflight, and again before a vehicle on
+    the ground rejoins). A vehicle whose home is outside the fence, or that does not take the fence,
+    does not fly (the others do)."""
+    fence = c.fence
+    assert fence is not None
+    if not fence_contains(fence, home.lat, home.lon):
+        why = (
+            f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
+            "boundary); launch it inside the area, or fly without fence"
+        )
+        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=why)
+        raise MavlinkError(why)
+    try:
+        await c.until_stopped(a.vehicle.upload_fence(fence))
+    except (TimeoutError, MavlinkError) as exc:
+        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=str(exc))
+        raise MavlinkError(f"{exc}; without its fence {a.name} does not take off") from None
+    if not c.stopping:
+        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=True, vertices=len(fence))
+
+
+async def rejoin(c: Controller, a: Agent) -> None:
+    """A vehicle back after a link loss: take it back from its failsafe in the air (or take off again
+    from the ground, after its fence), fly to the nearest free cell, and search again."""
+    timing = c.plan.spec.timing
+    try:
+        pos = a.vehicle.position
+        if a.vehicle.armed and pos is not None and pos.rel_alt > AIRBORNE_M:
+            # still in the air, perhaps returning or landing on its failsafe: take it back there
+            await a.vehicle.resume()
+        else:
+            if c.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
+                await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout))
+                if a.vehicle.home is None:
+                    raise MavlinkError(f"{a.name}: no home position")
+                await upload_fence(c, a, a.vehicle.home)
+            async with c.takeoff_slots:
+                await a.vehicle.arm_and_takeoff(c.plan.spec.mission.altitude, timing.takeoff_timeout)
+        pos = a.vehicle.position
+        here = c.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
+        if here is None or not c.grid.in_grid(*here):
+            here = a.cell or (0, 0)
+        a.cell = None
+        cell = nearest_free(c, here, exclude=a)
+        a.cell = cell
+        since = time.monotonic()
+        await fly(c, a, cell, timing.step_timeout * 3)
+        await sense_and_share(c, a, moved=True, since=since)
+        c.enter(a, State.SEARCH, rejoined=True)
+    except asyncio.CancelledError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a task that dies silently would leave the vehicle in REJOIN
+        if not isinstance(exc, (MavlinkError, asyncio.TimeoutError)):
+            log.exception("%s: rejoining failed", a.name)
+        a.error = str(exc) or type(exc).__name__
+        c.enter(a, State.FAILED, error=a.error)
+    finally:
+        a.rejoin_task = None
