@@ -16,6 +16,7 @@ from tests.sitl_support import (
     CHICAGO_HOME,
     arducopter_sitl,
     mavlink_client,
+    read_param,
     request_message_interval,
     tcp_listening,
     wait_message,
@@ -27,9 +28,11 @@ MAV = mavutil.mavlink
 
 
 def test_arducopter_sends_heartbeats_and_streams_position_once_asked():
-    with arducopter_sitl(1) as [copter], mavlink_client(copter.connection) as conn:
+    with arducopter_sitl(1, params={"BATT_CAPACITY": 33000}) as [copter], mavlink_client(copter.connection) as conn:
         hb = wait_message(conn, "HEARTBEAT", 30, sysid=copter.sysid)
         assert (hb.autopilot, hb.type) == (MAV.MAV_AUTOPILOT_ARDUPILOTMEGA, MAV.MAV_TYPE_QUADROTOR)
+        assert read_param(conn, copter.sysid, "BATT_CAPACITY") == 33000  # the harness's defaults on copter.parm
+        assert read_param(conn, copter.sysid, "MAV_SYSID") == copter.sysid == copter.instance + 1
         # a request sent while the vehicle boots can be lost: repeat it until the stream starts
         ask = lambda: request_message_interval(conn, copter.sysid, MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 5.0)
         wait_message(conn, "GLOBAL_POSITION_INT", 30, sysid=copter.sysid, every=ask)
