@@ -84,6 +84,18 @@ TABLES: dict[str, dict] = {
             "oracle",
         ],
     ),
+    "obstacles-3uav-stage3": dict(
+        world=dict(scenario="cluster", uavs=3, obstacles=0.1),
+        episodes=500,
+        steps=40,
+        policies=[
+            f"ddql:{STAGE3}",
+            f"ddql:{STAGE3}{PAPER}",
+            f"ddql:{STAGE3}:hover=no",
+            f"ddql:{STAGE3}:mask=no",
+            f"ddql-greedy:{STAGE3}",
+        ],
+    ),
     "obstacles-3uav-heldout": dict(
         world=dict(scenario="cluster", uavs=3, obstacles=0.1),
         episodes=300,
