@@ -41,8 +41,11 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
         w, h = beliefs.width, beliefs.height
         pos = beliefs.pos
         dest = move_table(w, h)[pos[..., 0] * h + pos[..., 1]]  # (B, U, 5) flat cells, -1 off the map
-        known = beliefs.obstacles.reshape(b, u, w * h)
-        allowed = (dest >= 0) & ~known[np.arange(b)[:, None, None], np.arange(u)[None, :, None], dest]
+        allowed = dest >= 0
+        known = beliefs.obstacles
+        if known.any():
+            flat = known.reshape(b, u, w * h)
+            allowed &= ~flat[np.arange(b)[:, None, None], np.arange(u)[None, :, None], dest]
         held = beliefs.others & beliefs.hovering  # (B, U, N): the cells they hover on are blocked
         if held.any():
             cells = np.where(held, beliefs.positions[..., 0] * h + beliefs.positions[..., 1], -2)

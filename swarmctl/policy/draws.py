@@ -88,7 +88,7 @@ def uniform(
 
 def _uniform_small(seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape) -> np.ndarray:
     """uniform() for a few draws, on Python ints: the same bits."""
-    kshape = np.broadcast_shapes(episodes.shape, vehicles.shape)
+    kshape = vehicles.shape if episodes.size == 1 else np.broadcast_shapes(episodes.shape, vehicles.shape)
     n, size = math.prod(kshape), math.prod(shape)
     head = _mix_int(0x5EED + _G + (seed & _MASK))
     bits = []
