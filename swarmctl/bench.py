@@ -1,10 +1,18 @@
-"""`swarmctl bench`: environment throughput and planner decision times on this machine."""
+"""`swarmctl bench`: simulator throughput, decision times against the network's FLOP limit, and
+training throughput against its FLOP ceiling, all measured in one run on this machine.
+
+Every time is the median of five rounds (each round at least `seconds` / 5). The FLOP rate is that of
+a 1,024 x 1,024 float32 matmul on the same threads, measured in the same run, so the ratios hold for
+the machine's state during the run; the load average before and after is reported beside them.
+"""
 
 from __future__ import annotations
 
 import json
 import os
 import platform
+import statistics
+import tempfile
 import time
 from pathlib import Path
 
@@ -15,106 +23,225 @@ from swarmctl.policy.lookahead import LookAhead
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
 
+ROUNDS = 5
+PAPER_OPTIONS = ":taken=keep:hover=no:mask=no"  # the paper's DDQL Soft: the network and softmax alone
 
-def _timed(fn, min_seconds: float) -> tuple[float, int]:
-    """Call fn repeatedly for at least min_seconds; returns (seconds, calls)."""
-    fn()  # warm-up
-    calls, start = 0, time.perf_counter()
-    while True:
-        fn()
-        calls += 1
-        elapsed = time.perf_counter() - start
-        if elapsed >= min_seconds:
-            return elapsed, calls
+
+def _median_seconds(fn, seconds: float) -> float:
+    """Median over ROUNDS rounds of the time of one call of fn (after one warm-up call)."""
+    fn()
+    per_round, times = seconds / ROUNDS, []
+    for _ in range(ROUNDS):
+        calls, start = 0, time.perf_counter()
+        while True:
+            fn()
+            calls += 1
+            elapsed = time.perf_counter() - start
+            if elapsed >= per_round:
+                break
+        times.append(elapsed / calls)
+    return statistics.median(times)
+
+
+def matmul_flops_per_s(seconds: float, n: int = 1024) -> float:
+    """float32 FLOP/s of an n x n matmul on torch's current threads: the machine's practical peak."""
+    import torch
+
+    a, b = torch.rand(n, n), torch.rand(n, n)
+    return 2 * n**3 / _median_seconds(lambda: a @ b, seconds)
 
 
 def env_throughput(cfg: WorldConfig, batch: int, observations: bool, seconds: float) -> float:
     """Vehicle-steps per second of random joint moves, observations included if asked."""
     env = SearchEnv(cfg, batch=batch, stop_at_success=False, observations=observations)
     env.reset(seed=0)
-    rng = np.random.default_rng(0)
-    actions = rng.integers(0, 5, size=(64, batch, cfg.uavs))
-    i = iter(range(10**9))
-    elapsed, calls = _timed(lambda: env.step(actions[next(i) % 64]), seconds)
-    return calls * batch * cfg.uavs / elapsed
+    actions = np.random.default_rng(0).integers(0, 5, size=(64, batch, cfg.uavs))
+    i = iter(range(10**12))
+    return batch * cfg.uavs / _median_seconds(lambda: env.step(actions[next(i) % 64]), seconds)
 
 
-def la_decision_seconds(depth: int, seconds: float) -> float:
-    """Time of one LA(depth) decision for one vehicle (batch of one episode, U = 2)."""
-    env = SearchEnv(WorldConfig(), batch=1, observations=False)
+def decision_seconds(policy, batch_episodes: int, seconds: float) -> float:
+    """Time of one decision per vehicle: `policy.act` on fresh beliefs (their lazy maps included) of
+    a batch of episodes (U = 2, five steps in); building the Beliefs object itself is not timed."""
+    env = SearchEnv(WorldConfig(), batch=batch_episodes, observations=False)
     env.reset(seed=0)
-    policy = LookAhead(depth)
+    for _ in range(5):
+        env.step(np.tile([[1, 2]], (batch_episodes, 1)))
     policy.reset(env.beliefs(), 0)
-    elapsed, calls = _timed(lambda: policy.act(env.beliefs()), seconds)
-    return elapsed / (calls * env.uavs)
+    policy.act(env.beliefs())  # warm-up
+    rounds = []
+    for _ in range(ROUNDS):
+        spent, calls, start = 0.0, 0, time.perf_counter()
+        while calls == 0 or time.perf_counter() - start < seconds / ROUNDS:
+            beliefs = env.beliefs()
+            t0 = time.perf_counter()
+            policy.act(beliefs)
+            spent += time.perf_counter() - t0
+            calls += 1
+        rounds.append(spent / calls)
+    return statistics.median(rounds) / (batch_episodes * env.uavs)
 
 
-def ddql_decision_seconds(batch_episodes: int, seconds: float, options: str = "") -> float:
-    """Time of one DDQL decision per vehicle, as `ddql:PATH[options]` makes it: observation, forward
-    pass, the option rules and softmax sampling.
-
-    The weights do not change the cost, so an untrained network of the paper's architecture is timed."""
-    import tempfile
-
+def ddql_policy(tmp: Path, options: str = ""):
+    """`ddql:PATH[options]` on an untrained network of the paper's architecture (weights do not
+    change the cost)."""
     from swarmctl.policy.checkpoint import save_checkpoint
     from swarmctl.policy.ddql import make_ddql_policy
     from swarmctl.policy.qnet import QNetwork
 
     world = WorldConfig()
-    env = SearchEnv(world, batch=batch_episodes, observations=False)
-    env.reset(seed=0)
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "untrained.pt"
+    path = tmp / "untrained.pt"
+    if not path.exists():
         save_checkpoint(path, QNetwork(world.window), world.as_dict(), {}, {})
-        policy = make_ddql_policy(f"ddql:{path}{options}")
-    policy.reset(env.beliefs(), 0)
-    elapsed, calls = _timed(lambda: policy.act(env.beliefs()), seconds)
-    return elapsed / (calls * batch_episodes * env.uavs)
+    return make_ddql_policy(f"ddql:{path}{options}")
 
 
-PAPER_OPTIONS = ":taken=keep:hover=no:mask=no"  # the paper's DDQL Soft: the network and softmax alone
+def forward_seconds(policy, rows: int, seconds: float) -> float:
+    """Time of the policy's forward pass alone for `rows` observations, per observation."""
+    obs = np.random.default_rng(0).random((rows, 3, 20, 20), dtype=np.float32)
+    return _median_seconds(lambda: policy.forward(obs), seconds) / rows
 
 
-def run_bench(seconds: float = 2.0) -> dict:
-    """All benchmark figures, keys naming their unit."""
+def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
+    """Samples per second of the training loop (2 UAVs, 8 parallel episodes, batch 64, one gradient
+    step per joint step) and the ceiling the FLOPs allow: per sample, one forward to act plus
+    (batch / samples per joint step) x (online forward on o and o', target forward on o', and a
+    backward counted as two forwards)."""
+    from swarmctl.learn.ddql import TrainConfig, train
+    from swarmctl.policy.qnet import forward_flops
+
+    world = WorldConfig()
+    rounds = max(2, round(seconds / 2))
+    cfg = TrainConfig(
+        episodes=8 * rounds,
+        parallel_envs=8,
+        episode_lengths=(50, 50),
+        prefill_episodes=8,
+        eval_every=10**9,
+        eval_episodes=4,
+        eval_steps=2,
+        threads=threads,
+    )
+    with tempfile.TemporaryDirectory() as tmp:
+        meta = train(world, cfg, seed=0, out=Path(tmp) / "bench.pt", progress=False)
+    per_step = cfg.parallel_envs * world.uavs
+    flops = forward_flops(world.window) * (1 + cfg.updates_per_step * cfg.batch_size / per_step * 5)
+    ceiling = flops_per_s / flops
+    return {
+        "train_samples_per_s": meta["train_samples_per_s"],
+        "train_flop_ceiling_samples_per_s": ceiling,
+        "train_fraction_of_ceiling": meta["train_samples_per_s"] / ceiling,
+        "train_setting": "2 UAVs, 20 x 20, 8 parallel episodes, batch 64, 1 gradient step per joint step",
+    }
+
+
+def machine(threads: int) -> dict:
+    """What the figures were measured on."""
+    import torch
+
+    from swarmctl.policy.forward import onnx_available
+
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    ort = None
+    if onnx_available():
+        import onnxruntime
+
+        ort = onnxruntime.__version__
+    return {
+        "cpu_model": model,
+        "cpu_count": os.cpu_count(),
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "torch": str(torch.__version__),
+        "onnxruntime": ort,
+        "threads": threads,
+    }
+
+
+def run_bench(seconds: float = 2.0, threads: int = 1, train: bool = True) -> dict:
+    """All benchmark figures, keys naming their unit (module docstring)."""
+    from swarmctl.policy.qnet import forward_flops
+    from swarmctl.policy.threads import set_inference_threads
+
+    set_inference_threads(threads)
+    load_before = os.getloadavg()
     m20 = WorldConfig()
     m50 = WorldConfig(map_size=50, uavs=10, targets=16, clusters=4, obstacles=0.1)
-    out = {
-        "machine": {
-            "cpu_count": os.cpu_count(),
-            "platform": platform.platform(),
-            "processor": platform.processor() or platform.machine(),
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-        },
-        "env_vehicle_steps_per_s": env_throughput(m20, 256, True, seconds),
-        "env_vehicle_steps_per_s_no_obs": env_throughput(m20, 256, False, seconds),
-        "env_m50_u10_vehicle_steps_per_s": env_throughput(m50, 64, True, seconds),
-        "env_m50_u10_vehicle_steps_per_s_no_obs": env_throughput(m50, 64, False, seconds),
-        "la4_decision_ms": 1000.0 * la_decision_seconds(4, seconds),
-        "ddql_decision_ms_batch1": 1000.0 * ddql_decision_seconds(1, seconds),
-        "ddql_decision_ms_per_vehicle_batch256": 1000.0 * ddql_decision_seconds(256, seconds),
-        "ddql_paper_decision_ms_batch1": 1000.0 * ddql_decision_seconds(1, seconds, PAPER_OPTIONS),
-    }
-    out["la4_over_ddql_decision_time"] = out["la4_decision_ms"] / out["ddql_decision_ms_batch1"]
+    out: dict = {"machine": machine(threads)}
+    rate = matmul_flops_per_s(seconds)
+    out["matmul_gflop_per_s"] = rate / 1e9
+    out["qnet_flop_limit_ms_batch1"] = 1000.0 * forward_flops(m20.window) / rate
+    with tempfile.TemporaryDirectory() as tmp:
+        ddql = ddql_policy(Path(tmp))
+        torch_ddql = ddql_policy(Path(tmp), ":forward=torch")
+        out["ddql_forward"] = ddql.forward.name
+        out["ddql_decision_ms_batch1"] = 1000.0 * decision_seconds(ddql, 1, seconds)
+        out["ddql_decision_ms_batch1_torch_forward"] = 1000.0 * decision_seconds(torch_ddql, 1, seconds)
+        out["ddql_paper_decision_ms_batch1"] = 1000.0 * decision_seconds(
+            ddql_policy(Path(tmp), PAPER_OPTIONS), 1, seconds
+        )
+        out["ddql_decision_ms_per_vehicle_batch256"] = 1000.0 * decision_seconds(ddql, 256, seconds)
+        out["qnet_forward_ms_batch1"] = 1000.0 * forward_seconds(ddql, 1, seconds)
+        out["qnet_forward_ms_batch1_torch"] = 1000.0 * forward_seconds(torch_ddql, 1, seconds)
+        out["qnet_forward_ms_per_row_batch512"] = 1000.0 * forward_seconds(ddql, 512, seconds)
+    out["ddql_decision_over_flop_limit"] = out["ddql_decision_ms_batch1"] / out["qnet_flop_limit_ms_batch1"]
+    out["la4_decision_ms_batch1"] = 1000.0 * decision_seconds(LookAhead(4), 1, seconds)
+    out["la4_over_ddql_decision_time"] = out["la4_decision_ms_batch1"] / out["ddql_decision_ms_batch1"]
+    for batch in (1, 256):
+        out[f"env_vehicle_steps_per_s_batch{batch}"] = env_throughput(m20, batch, True, seconds)
+        out[f"env_vehicle_steps_per_s_batch{batch}_no_obs"] = env_throughput(m20, batch, False, seconds)
+    out["env_m50_u10_vehicle_steps_per_s_batch64"] = env_throughput(m50, 64, True, seconds)
+    out["env_m50_u10_vehicle_steps_per_s_batch64_no_obs"] = env_throughput(m50, 64, False, seconds)
     env = SearchEnv(m20, batch=256, stop_at_success=False)
     env.reset(seed=0)
-    elapsed, calls = _timed(env.observe, seconds)
-    out["observe_ms_per_batch_256x2"] = 1000.0 * elapsed / calls
+    out["observe_ms_per_batch_256x2"] = 1000.0 * _median_seconds(env.observe, seconds)
+    if train:
+        out.update(training_figures(rate, threads, seconds))
+    out["machine"]["load_average_before"] = list(load_before)
+    out["machine"]["load_average_after"] = list(os.getloadavg())
     return out
+
+
+def format_figures(results: dict) -> str:
+    """The figures as aligned text lines, the machine last."""
+    lines = []
+    for key, value in results.items():
+        if key == "machine":
+            continue
+        lines.append(f"{key:>48}: {value:,.4f}" if isinstance(value, float) else f"{key:>48}: {value}")
+    m = results["machine"]
+    lines.append(
+        f"{'machine':>48}: {m['cpu_model']}, {m['cpu_count']} cores, {m['threads']} thread(s), Python {m['python']}, "
+        f"numpy {m['numpy']}, torch {m['torch']}, onnxruntime {m['onnxruntime']}"
+    )
+    before, after = m["load_average_before"], m["load_average_after"]
+    lines.append(f"{'load average (1, 5, 15 min)':>48}: before {before}, after {after}")
+    return "\n".join(lines)
 
 
 @click.command("bench")
 @click.option("--seconds", type=float, default=2.0, show_default=True, help="Time per measurement.")
+@click.option("--threads", type=int, default=1, show_default=True, help="Torch and onnxruntime CPU threads.")
+@click.option("--no-train", is_flag=True, help="Leave out the training throughput (about 10 s).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the figures here.")
-def bench_command(seconds, json_path):
-    """Measure environment throughput (M=20 U=2 B=256; M=50 U=10 B=64) and LA(4) and DDQL decision times."""
-    results = run_bench(seconds)
-    for key, value in results.items():
-        if key != "machine":
-            click.echo(f"{key:>42}: {value:,.3f}")
-    m = results["machine"]
-    click.echo(f"{'machine':>42}: {m['cpu_count']} cores, {m['processor']}, Python {m['python']}, numpy {m['numpy']}")
+def bench_command(seconds, threads, no_train, json_path):
+    """Measure the simulator (batch 1 and 256), decision times (DDQL against the network's FLOP limit,
+    LA(4)) and training throughput against its FLOP ceiling, in one run."""
+    from swarmctl.cli_options import require
+
+    require(threads >= 1, f"--threads {threads} must be >= 1")
+    require(seconds > 0, f"--seconds {seconds} must be > 0")
+    results = run_bench(seconds, threads, train=not no_train)
+    click.echo(format_figures(results))
     if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(results, indent=1))
         click.echo(f"wrote {json_path}")

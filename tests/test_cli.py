@@ -49,13 +49,32 @@ def test_single_policy_json_is_still_a_list(tmp_path):
     assert len(json.loads(out.read_text())["results"]) == 1
 
 
-def test_bench_json_names_units(tmp_path):
+def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path):
     out = tmp_path / "b.json"
     assert main(["bench", "--seconds", "0.05", "--json", str(out)]) == 0
     data = json.loads(out.read_text())
-    assert data["env_vehicle_steps_per_s"] > 0 and data["la4_decision_ms"] > 0
-    assert data["env_m50_u10_vehicle_steps_per_s"] > 0
-    assert data["ddql_decision_ms_batch1"] > 0 and data["ddql_paper_decision_ms_batch1"] > 0
+    for key in (
+        "ddql_decision_ms_batch1",
+        "qnet_flop_limit_ms_batch1",
+        "la4_decision_ms_batch1",
+        "ddql_paper_decision_ms_batch1",
+        "env_vehicle_steps_per_s_batch1",
+        "env_vehicle_steps_per_s_batch1_no_obs",
+        "env_vehicle_steps_per_s_batch256",
+        "env_vehicle_steps_per_s_batch256_no_obs",
+        "env_m50_u10_vehicle_steps_per_s_batch64",
+        "train_samples_per_s",
+        "train_flop_ceiling_samples_per_s",
+    ):
+        assert data[key] > 0, key
+    # the limit is the network's 4.88 MFLOP at the matmul rate of this very run
+    assert data["qnet_flop_limit_ms_batch1"] == pytest.approx(4.88448e6 / (data["matmul_gflop_per_s"] * 1e9) * 1e3)
+    assert data["ddql_decision_over_flop_limit"] == pytest.approx(
+        data["ddql_decision_ms_batch1"] / data["qnet_flop_limit_ms_batch1"]
+    )
+    m = data["machine"]
+    assert m["threads"] == 1 and m["cpu_count"] >= 1 and m["cpu_model"] and m["torch"] and m["numpy"]
+    assert len(m["load_average_before"]) == 3 and len(m["load_average_after"]) == 3
 
 
 @pytest.mark.parametrize(

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from swarmctl.cli_options import require, world_config, world_options
-from swarmctl.learn.evaluate import evaluate
+from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
 from swarmctl.policy.registry import POLICY_HELP
 
 
@@ -65,12 +65,27 @@ def format_table(results: list[dict]) -> str:
     "obstacles, targets and starts are drawn by the scenario's rules in its largest free region; "
     "--map and --obstacles do not apply.",
 )
+@click.option(
+    "--batch",
+    type=int,
+    default=DEFAULT_CHUNK,
+    show_default=True,
+    help="Episodes stepped at once (memory and speed only: results do not depend on it).",
+)
+@click.option(
+    "--threads", type=int, default=1, show_default=True, help="Torch and onnxruntime CPU threads for the policies."
+)
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on a terminal.")
-def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress, **kwargs):
+def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, threads, progress, **kwargs):
     """Evaluate policies: success rate, mean episode duration, duration CDF, against the oracle bound."""
     cfg = world_config(kwargs)
     require(steps >= 1, f"--steps {steps} must be >= 1")
     require(episodes >= 1, f"--episodes {episodes} must be >= 1")
+    require(batch >= 1, f"--batch {batch} must be >= 1")
+    require(threads >= 1, f"--threads {threads} must be >= 1")
+    from swarmctl.policy.threads import set_inference_threads
+
+    set_inference_threads(threads)
     blocked, where = None, f"M={cfg.map_size}"
     if grid_file is not None:
         from swarmctl.geo.grid import GeoGrid
@@ -79,7 +94,7 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, progress
         blocked = grid.blocked.copy()
         cfg = replace(cfg, map_size=max(grid.width, grid.height), obstacles=0.0)
         where = f"grid {grid_file} ({grid.width} x {grid.height}, {blocked.mean():.1%} blocked)"
-    results = evaluate(cfg, list(policies), episodes, seed, steps, progress=progress, blocked=blocked)
+    results = evaluate(cfg, list(policies), episodes, seed, steps, chunk=batch, progress=progress, blocked=blocked)
     if grid_file is not None:
         for r in results:
             r["scenario"]["grid"] = str(grid_file)

@@ -59,10 +59,9 @@ def run_policy(
                 break
             actions = np.zeros((n, env.uavs), dtype=np.int64)  # finished episodes stay frozen anyway
             t0 = time.perf_counter()
-            beliefs = env.beliefs()
-            actions[live] = policy.act(beliefs if live.all() else beliefs.select(live))
+            actions[live] = policy.act(env.beliefs(None if live.all() else live))  # the live episodes only
             act_seconds += time.perf_counter() - t0
-            decisions += int(live.sum()) * env.uavs
+            decisions += int(live.sum()) * env.uavs  # the vehicles decided for
             env.step(actions)
         durations.append(np.where(env.done, env.duration, steps))
         successes.append(env.done.copy())

@@ -10,6 +10,9 @@ the settings stored in the checkpoint: window, rho, sigma2, fov), `la:N`, `front
 (its lanes planned from the first beliefs and kept), `random`. The oracle reads the truth: it is not
 a policy and cannot fly.
 
+Inference runs on one CPU thread (swarmctl.policy.threads; SWARMCTL_THREADS changes it for fly, agent
+and demo).
+
 Hovering is the controller's HOVER state, so the agents asked to choose never hover themselves.
 """
 
@@ -22,6 +25,7 @@ from swarmctl.errors import InputError
 from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge, beliefs_from_knowledge
 from swarmctl.policy.ddql import DDQLPolicy
 from swarmctl.policy.registry import make_policy
+from swarmctl.policy.threads import set_inference_threads
 from swarmctl.world.beliefs import ObservationSettings
 
 FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random"
@@ -42,6 +46,7 @@ class FieldPolicy:
     def __init__(self, spec: str, seed: int = 0):
         self.spec = spec.strip()
         self.seed = int(seed)
+        set_inference_threads()  # before the model is loaded: SWARMCTL_THREADS, default one thread
         if self.spec == "oracle":
             raise InputError(
                 f"policy {self.spec!r} cannot fly a mission: it reads the hidden targets; use one of {FIELD_POLICIES}"

@@ -19,7 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from swarmctl.world.beliefs import Beliefs
-from swarmctl.world.moves import MOVES, STAY
+from swarmctl.world.moves import MOVES, STAY, move_table
 
 
 class Policy(Protocol):
@@ -37,14 +37,21 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     off the map or into a cell the decider knows to be blocked (an obstacle, or a vehicle hovering on
     a target). A decider left with no move at all may stay."""
     b, u = beliefs.batch, beliefs.deciders
-    allowed = np.ones((b, u, len(MOVES)), dtype=bool)
     if mask:
         w, h = beliefs.width, beliefs.height
-        dest = beliefs.pos[:, :, None, :] + MOVES[None, None]
-        inside = (dest[..., 0] >= 0) & (dest[..., 0] < w) & (dest[..., 1] >= 0) & (dest[..., 1] < h)
-        bi, ui = np.arange(b)[:, None, None], np.arange(u)[None, :, None]
-        hit = beliefs.blocked[bi, ui, np.clip(dest[..., 0], 0, w - 1), np.clip(dest[..., 1], 0, h - 1)]
-        allowed &= inside & ~hit
+        pos = beliefs.pos
+        dest = move_table(w, h)[pos[..., 0] * h + pos[..., 1]]  # (B, U, 5) flat cells, -1 off the map
+        allowed = dest >= 0
+        known = beliefs.obstacles
+        if known.any():
+            flat = known.reshape(b, u, w * h)
+            allowed &= ~flat[np.arange(b)[:, None, None], np.arange(u)[None, :, None], dest]
+        held = beliefs.others & beliefs.hovering  # (B, U, N): the cells they hover on are blocked
+        if held.any():
+            cells = np.where(held, beliefs.positions[..., 0] * h + beliefs.positions[..., 1], -2)
+            allowed &= ~(dest[..., None] == cells[:, :, None, :]).any(-1)
+    else:
+        allowed = np.ones((b, u, len(MOVES)), dtype=bool)
     if hover:
         here = beliefs.hovering_self
         allowed[..., STAY] = here

@@ -15,7 +15,9 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
 - `straggler=network|frontier`: who steers the last vehicle still searching once every other one
   hovers on a target. The paper names this straggler, far from anything its window shows on a big
   map, as its residual failure; `frontier` hands it to the frontier planner (nearest unexplored
-  cell) until it finds a target (default network).
+  cell) until it finds a target (default network);
+- `forward=auto|torch|onnx`: what runs the network (swarmctl.policy.forward): onnxruntime when it is
+  installed (`auto`, the default), plain torch (the reference), or onnxruntime, required.
 
 `ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft. The observation settings (window,
 rho, sigma2, ...) are the ones stored in the checkpoint's world config.
@@ -27,12 +29,12 @@ import re
 from dataclasses import dataclass, replace
 
 import numpy as np
-import torch
 
 from swarmctl.errors import InputError
 from swarmctl.policy.base import allowed_moves, choose
 from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.policy.draws import SOFTMAX, Draws
+from swarmctl.policy.forward import make_forward
 from swarmctl.policy.planners import FrontierPolicy
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
@@ -61,6 +63,7 @@ class DDQLPolicy:
         hover: bool = True,
         mask: bool = True,
         straggler_frontier: bool = False,
+        forward: str = "auto",
     ):
         self.path = path
         self.tau = tau
@@ -68,6 +71,7 @@ class DDQLPolicy:
         self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
+        self.forward = make_forward(self.net, forward, key=self.info.get("weights_sha256"))
         # as it was trained (the window of the network itself)
         self.settings = replace(ObservationSettings.from_world(self.info["world"]), window=self.net.window)
         self.seed = 0
@@ -90,9 +94,7 @@ class DDQLPolicy:
     def q_values(self, obs: np.ndarray) -> np.ndarray:
         """Q-values (B, U, 5) for observations (B, U, 3, F, F)."""
         b, u = obs.shape[:2]
-        with torch.inference_mode():
-            q = self.net(torch.from_numpy(np.ascontiguousarray(obs).reshape(b * u, *obs.shape[2:])))
-        return q.numpy().reshape(b, u, -1)
+        return self.forward(obs.reshape(b * u, *obs.shape[2:])).reshape(b, u, -1)
 
     def decide(self, beliefs: Beliefs) -> Decision:
         obs = observe(beliefs, self.remove_taken)
@@ -120,7 +122,7 @@ class DDQLPolicy:
 def split_options(rest: str) -> tuple[str, str]:
     """`PATH:key=value:...` -> (PATH, ":key=value:..."), the options being those `ddql:` takes."""
     path = rest
-    while (m := re.search(r":(tau|taken|hover|mask|straggler)=([^:]*)$", path)) is not None:
+    while (m := re.search(r":(tau|taken|hover|mask|straggler|forward)=([^:]*)$", path)) is not None:
         path = path[: m.start()]
     return path, rest[len(path) :]
 
@@ -130,12 +132,13 @@ _CHOICES = {
     "hover": ("yes", "no"),
     "mask": ("yes", "no"),
     "straggler": ("network", "frontier"),
+    "forward": ("auto", "torch", "onnx"),
 }
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
     """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]
-    [:straggler=network|frontier]` or `ddql-greedy:PATH[...]`, options in any order."""
+    [:straggler=network|frontier][:forward=auto|torch|onnx]` or `ddql-greedy:PATH[...]`, options in any order."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
@@ -164,4 +167,5 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
         hover=options.get("hover", "yes") == "yes",
         mask=options.get("mask", "yes") == "yes",
         straggler_frontier=options.get("straggler", "network") == "frontier",
+        forward=options.get("forward", "auto"),
     )

@@ -10,6 +10,8 @@ very numbers that vehicle draws for itself. 53-bit uniforms in [0, 1).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from swarmctl.world.beliefs import Beliefs
@@ -40,20 +42,61 @@ def _key(*parts) -> np.ndarray:
         return h
 
 
+def _column(a: np.ndarray, shape: tuple[int, ...], size: int) -> list[int]:
+    """The values of `a` broadcast to `shape`, flat, as Python ints."""
+    if a.size == 1:
+        return [int(a.reshape(-1)[0])] * size
+    if a.shape == shape:
+        return a.ravel().tolist()
+    return np.broadcast_to(a, shape).ravel().tolist()
+
+
+# The same arithmetic on Python ints, for the few draws of a batch-1 decision (a numpy call costs about
+# a microsecond whatever its size; tests/test_planners.py checks that both give the same bits).
+SMALL = 16  # draws up to which the Python path is used
+_MASK = (1 << 64) - 1
+_G, _M1_INT, _M2_INT = int(_GOLDEN), int(_M1), int(_M2)
+
+
+def _mix_int(z: int) -> int:
+    z &= _MASK
+    z ^= z >> 30
+    z = (z * _M1_INT) & _MASK
+    z ^= z >> 27
+    z = (z * _M2_INT) & _MASK
+    return z ^ (z >> 31)
+
+
 def uniform(
     seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape: tuple[int, ...] = ()
 ) -> np.ndarray:
     """Uniforms in [0, 1) of shape broadcast(episodes[:, None...], vehicles) + shape.
 
     episodes: (B,) ids; vehicles: (B, V) indices in the swarm (deciders, or any vehicles)."""
-    episodes = np.asarray(episodes, dtype=np.int64).reshape(-1, *([1] * (np.ndim(vehicles) - 1)))
+    vehicles = np.asarray(vehicles)
+    episodes = np.asarray(episodes, dtype=np.int64).reshape(-1, *([1] * (vehicles.ndim - 1)))
+    size = math.prod(shape)
+    if episodes.size * vehicles.size * size <= SMALL:
+        return _uniform_small(int(seed), episodes, int(step), vehicles, int(stream), shape)
     key = _key(seed, episodes, step, vehicles, stream)  # (B, V)
-    size = int(np.prod(shape)) if shape else 1
     with np.errstate(over="ignore"):
         index = np.arange(size, dtype=np.uint64) * _GOLDEN
         bits = _mix(key[..., None] + index)
     out = (bits >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))
     return out.reshape(*key.shape, *shape)
+
+
+def _uniform_small(seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape) -> np.ndarray:
+    """uniform() for a few draws, on Python ints: the same bits."""
+    kshape = vehicles.shape if episodes.size == 1 else np.broadcast_shapes(episodes.shape, vehicles.shape)
+    n, size = math.prod(kshape), math.prod(shape)
+    head = _mix_int(0x5EED + _G + (seed & _MASK))
+    bits = []
+    for e, v in zip(_column(episodes, kshape, n), _column(vehicles.astype(np.int64), kshape, n)):
+        k = _mix_int(_mix_int(head + _G + (e & _MASK)) + _G + (step & _MASK))
+        k = _mix_int(_mix_int(k + _G + (v & _MASK)) + _G + (stream & _MASK))
+        bits.extend(_mix_int(k + i * _G) >> 11 for i in range(size))
+    return (np.array(bits, dtype=np.float64) * (1.0 / (1 << 53))).reshape(*kshape, *shape)
 
 
 class Draws:

@@ -49,3 +49,17 @@ class QNetwork(nn.Module):
 
 def parameter_count(net: nn.Module) -> int:
     return sum(p.numel() for p in net.parameters())
+
+
+def forward_flops(window: int = 20, n_actions: int = 5, channels: int = 20, hidden: int = 64) -> int:
+    """FLOPs of one forward pass for one observation (2 per multiply-add, biases and ReLUs left out):
+    4.88 M for F = 20 (PAPER.md)."""
+    side1, side2, side3 = window, window - 3, conv_output_side(window)
+    macs = (
+        side1 * side1 * channels * 3 * 3 * 3
+        + side2 * side2 * channels * channels * 4 * 4
+        + side3 * side3 * channels * channels * 4 * 4
+        + channels * side3 * side3 * hidden
+        + hidden * n_actions
+    )
+    return 2 * macs

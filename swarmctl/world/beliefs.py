@@ -100,13 +100,14 @@ class Beliefs:
         ):
             if arr.shape != shape:
                 raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {shape}")
-        if n < 1 or self.me.min(initial=0) < 0 or self.me.max(initial=0) >= n:
+        if n < 1 or (self.me.size and (self.me.min() < 0 or self.me.max() >= n)):
             raise ValueError(f"beliefs: a decider's own index is outside the {n} vehicles")
-        x, y = self.positions[..., 0], self.positions[..., 1]
-        if x.size and (min(x.min(), y.min()) < -1 or x.max() >= w or y.max() >= h):
-            raise ValueError("beliefs: a known position lies outside the grid")
-        if self.pos.min(initial=0) < 0:
-            raise ValueError("beliefs: every decider must know its own cell")
+        if self.positions.size:
+            x_max, y_max = self.positions.reshape(-1, 2).max(0)
+            if self.positions.min() < -1 or x_max >= w or y_max >= h:
+                raise ValueError("beliefs: a known position lies outside the grid")
+            if self.pos.min() < 0:
+                raise ValueError("beliefs: every decider must know its own cell")
 
     def _map(self, name: str) -> np.ndarray:
         """A grid-sized field, computed (once) if it was given as a callable, and checked."""
@@ -157,9 +158,15 @@ class Beliefs:
 
     # --- derived views (computed once per Beliefs) ---------------------------------------------------
     @cached_property
+    def _rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Index arrays (B, 1) and (1, U) over batches and deciders."""
+        return np.arange(self.batch)[:, None], np.arange(self.deciders)[None, :]
+
+    @cached_property
     def pos(self) -> np.ndarray:
         """(B, U, 2) each decider's own cell."""
-        return np.take_along_axis(self.positions, self.me[..., None, None], axis=2)[:, :, 0]
+        bi, ui = self._rows
+        return self.positions[bi, ui, self.me]
 
     @cached_property
     def others(self) -> np.ndarray:
@@ -170,11 +177,14 @@ class Beliefs:
     @cached_property
     def hovering_self(self) -> np.ndarray:
         """(B, U) bool: the decider hovers on a target (it stays there)."""
-        return np.take_along_axis(self.hovering, self.me[..., None], axis=2)[..., 0]
+        bi, ui = self._rows
+        return self.hovering[bi, ui, self.me]
 
     def _cell_counts(self, which: np.ndarray) -> np.ndarray:
         """(B, U, W, H) int: how many of the vehicles selected by `which` (B, U, N) are on each cell."""
         b, u, w, h = self.explored.shape
+        if not which.any():
+            return np.zeros((b, u, w, h), dtype=np.int64)
         bi, ui, ni = np.nonzero(which)
         flat = ((bi * u + ui) * w + self.positions[bi, ui, ni, 0]) * h + self.positions[bi, ui, ni, 1]
         return np.bincount(flat, minlength=b * u * w * h).reshape(b, u, w, h)
@@ -204,12 +214,24 @@ class Beliefs:
     @cached_property
     def taken(self) -> np.ndarray:
         """(B, U, W, H) bool: known targets on which the decider believes another vehicle is."""
+        if not self.any_taken:
+            return np.zeros(self.explored.shape, dtype=bool)
         return self.targets & (self.others_count > 0)
+
+    @cached_property
+    def any_taken(self) -> bool:
+        """Whether any decider believes another vehicle sits on a target it knows (a gather at the
+        others' cells, without building the grid-sized maps)."""
+        if not self.others.any():
+            return False
+        bi, ui = self._rows
+        cells = self.targets[bi[..., None], ui[..., None], self.positions[..., 0], self.positions[..., 1]]
+        return bool((cells & self.others).any())
 
     def phi_without_taken(self) -> np.ndarray:
         """phi_hat with the taken targets removed (swarmctl.world.taken), as LA(n) sees it."""
         s = self.settings
-        if not self.taken.any():
+        if not self.any_taken:
             return self.phi_hat
         return remove_taken_targets(self.phi_hat, self.explored, self.taken, s.sigma2, s.phi_cutoff, s.phi_tolerance)
 
@@ -217,7 +239,7 @@ class Beliefs:
         """phi_hat - rho * omega_hat per decider (B, U, W, H) float32: unexplored cells read 1; with
         remove_taken the targets others sit on leave phi_hat first. The result may be shared: do not
         modify it."""
-        if remove_taken and self.taken.any():
+        if remove_taken and self.any_taken:
             base = self.phi_without_taken()
         elif self._maps["value"] is not None:
             return self._map("value")

@@ -46,11 +46,16 @@ def build_observations(
     f = window
     n = b * u
     obs = np.zeros((n, 3, f, f), dtype=np.float32)
-    corner = window_corners(pos, w, h, f).reshape(n, 2)
     idx = np.arange(n)
-    if w == f and h == f:
-        obs[:, 2] = value.reshape(n, w, h)
+    if w <= f and h <= f:  # one window covers the map: every corner is (0, 0)
+        corner = None
+        if w == f and h == f:
+            obs[:, 2] = value.reshape(n, w, h)
+        else:
+            obs[:, 2] = -rho
+            obs[:, 2, :w, :h] = value.reshape(n, w, h)
     else:
+        corner = window_corners(pos, w, h, f).reshape(n, 2)
         pw, ph = max(w, f), max(h, f)
         if (pw, ph) != (w, h):
             padded = np.full((n, pw, ph), -rho, dtype=np.float32)
@@ -60,11 +65,15 @@ def build_observations(
         views = sliding_window_view(padded, (f, f), axis=(1, 2))
         obs[:, 2] = views[idx, corner[:, 0], corner[:, 1]]
 
-    own = pos.reshape(n, 2) - corner
+    own = pos.reshape(n, 2) if corner is None else pos.reshape(n, 2) - corner
     obs[idx, 0, own[:, 0], own[:, 1]] = 1.0
 
-    rel = positions.reshape(n, -1, 2) - corner[:, None, :]
-    visible = others.reshape(n, -1) & (rel >= 0).all(-1) & (rel < f).all(-1)
-    rows = np.broadcast_to(idx[:, None], visible.shape)[visible]
-    np.add.at(obs[:, 1], (rows, rel[..., 0][visible], rel[..., 1][visible]), 1.0)
+    if corner is None:  # every known position lies in the window
+        rel, visible = positions.reshape(n, -1, 2), others.reshape(n, -1)
+    else:
+        rel = positions.reshape(n, -1, 2) - corner[:, None, :]
+        visible = others.reshape(n, -1) & (rel >= 0).all(-1) & (rel < f).all(-1)
+    rows, who = np.nonzero(visible)
+    if len(rows):  # one count per vehicle on its cell of channel 1
+        np.add.at(obs.reshape(-1), ((rows * 3 + 1) * f + rel[rows, who, 0]) * f + rel[rows, who, 1], 1.0)
     return obs.reshape(b, u, 3, f, f)
