@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from swarmctl.bounds import real, writable_file
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -105,10 +106,12 @@ def run_bench(seconds: float = 2.0) -> dict:
 
 
 @click.command("bench")
-@click.option("--seconds", type=float, default=2.0, show_default=True, help="Time per measurement.")
+@click.option("--seconds", type=real(0, 600, above=True), default=2.0, show_default=True, help="Time per measurement.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the figures here.")
 def bench_command(seconds, json_path):
     """Measure environment throughput (M=20 U=2 B=256; M=50 U=10 B=64) and LA(4) and DDQL decision times."""
+    if json_path is not None:
+        writable_file(json_path, "--json")
     results = run_bench(seconds)
     for key, value in results.items():
         if key != "machine":
@@ -116,5 +119,6 @@ def bench_command(seconds, json_path):
     m = results["machine"]
     click.echo(f"{'machine':>42}: {m['cpu_count']} cores, {m['processor']}, Python {m['python']}, numpy {m['numpy']}")
     if json_path is not None:
+        json_path.parent.mkdir(parents=True, exist_ok=True)
         json_path.write_text(json.dumps(results, indent=1))
         click.echo(f"wrote {json_path}")
