@@ -56,6 +56,7 @@ class FiniteRange(click.FloatRange):
 
 def real(lo: float | None = None, hi: float | None = None, *, above: bool = False, below: bool = False) -> FiniteRange:
     """A finite float option in [lo, hi] (`above`: lo itself excluded; `below`: hi excluded)."""
+    lo, hi = (int(v) if isinstance(v, float) and v.is_integer() else v for v in (lo, hi))  # "1<=x<=60" in errors
     return FiniteRange(lo, hi, min_open=above, max_open=below)
 
 

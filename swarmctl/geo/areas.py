@@ -178,7 +178,7 @@ def _kml_ring(elem: ET.Element, path: Path, where: str):
         raise InputError(
             f"{path}: {where}: <coordinates> must be 'lon,lat[,alt]' tuples separated by spaces; fix the KML"
         ) from None
-    return lonlat_ring(points, path, where)
+    return lonlat_ring(points, path, where, fmt="KML")
 
 
 def read_kml(path: Path) -> Area:

@@ -44,7 +44,7 @@ def circle_polygon(circle: Circle) -> Polygon:
 def _ring(coords: object, path: Path, where: str) -> np.ndarray:
     if not isinstance(coords, list):
         raise InputError(f'{path}: {where}: "polygon" must be a list of [lat, lon] positions; fix the plan')
-    return lonlat_ring(coords, path, where, lat_first=True)
+    return lonlat_ring(coords, path, where, lat_first=True, fmt="a QGroundControl plan")
 
 
 def _items(parent: dict, key: str, path: Path, where: str) -> list:
@@ -103,7 +103,7 @@ def read_plan(path: str | Path) -> Area:
             raise InputError(
                 f'{path}: {where}: needs "circle": {{"center": [lat, lon], "radius": metres}}; fix the plan'
             ) from None
-        lonlat_ring([[lat, lon]], path, where, lat_first=True)
+        lonlat_ring([[lat, lon]], path, where, lat_first=True, fmt="a QGroundControl plan")
         if not 0 < radius < MAX_RADIUS:
             raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0 and below 1000 km; fix the plan")
         circle = Circle(lat, lon, radius)

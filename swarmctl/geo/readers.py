@@ -68,11 +68,13 @@ def check_geojson_crs(obj: object, path: Path) -> None:
     )
 
 
-def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False) -> np.ndarray:
+def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False, fmt: str = "GeoJSON") -> np.ndarray:
     """Check one ring's coordinates and return them as an (n, 2) float array of lon, lat.
 
-    `lat_first` is for QGroundControl plans, which store [lat, lon]. Extra values (altitude) are
-    dropped. Latitudes beyond +-90 are reported as swapped coordinates.
+    `lat_first` is for QGroundControl plans, which store [lat, lon]; `fmt` names the format in errors.
+    Extra values (altitude) are dropped. Latitudes beyond +-90, or within 5 degrees of a pole when the
+    swapped reading is an ordinary place, are reported as swapped coordinates; other polar rings, rings
+    round a pole and rings across the antimeridian are refused.
     """
     try:
         arr = np.array([[float(v) for v in pt[:2]] for pt in coords], dtype=float)  # type: ignore[union-attr]
@@ -85,13 +87,13 @@ def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False)
     if lat_first:
         arr = arr[:, ::-1]
     lon, lat = arr[:, 0], arr[:, 1]
-    order = "[lat, lon]" if lat_first else "[lon, lat] (RFC 7946)"
-    swapped = "[lon, lat]" if lat_first else "[lat, lon]"
+    stored, swapped = ("[lat, lon]", "[lon, lat]") if lat_first else ("[lon, lat]", "[lat, lon]")
+    order = f"{fmt} stores {stored}" + (" (RFC 7946)" if fmt == "GeoJSON" else "")
     worst = float(lat[np.argmax(np.abs(lat))])
     if abs(worst) > 90:
         raise InputError(
             f"{path}: {where}: latitude {worst:g} is beyond +-90, so the coordinates look like {swapped}; "
-            f"this format stores {order}: swap the two values"
+            f"{order}: swap the two values"
         )
     if np.any(np.abs(lon) > 180):
         raise InputError(
@@ -102,7 +104,7 @@ def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False)
         if np.all(np.abs(lon) <= POLAR_LATITUDE):  # read the other way round, it is an ordinary place
             raise InputError(
                 f"{path}: {where}: latitude {worst:g} is within {90 - POLAR_LATITUDE:g} degrees of a pole, so the "
-                f"coordinates look like {swapped}; this format stores {order}: swap the two values"
+                f"coordinates look like {swapped}; {order}: swap the two values"
             )
         raise InputError(
             f"{path}: {where}: latitude {worst:g} is within {90 - POLAR_LATITUDE:g} degrees of a pole, where "

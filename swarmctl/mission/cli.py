@@ -145,7 +145,7 @@ def demo_command(
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
-    from swarmctl.mission.plan import load_grid
+    from swarmctl.mission.plan import check_grid_size, load_grid
     from swarmctl.mission.service import LiveView, draw_mission, run_controller
     from swarmctl.mission.spec import GroundStation, load_spec, parse_option
     from swarmctl.replay.truth import write_truth
@@ -175,6 +175,10 @@ def demo_command(
         grid = GeoGrid.load(grid_file)
         settings["grid"] = grid_file
         at = {}
+    check_grid_size(grid, f"demo: the grid of {mission_file or DEMO_GRID}")
+    room = int(grid.largest_free_region().sum()) - uavs  # targets hide there, never on a launch cell
+    if targets is not None and targets > room:
+        raise InputError(f"--targets {targets}: the grid's largest free region holds {room} besides the launch cells")
     folder = _out_folder(out, "demo")
     try:
         swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **at)

@@ -22,6 +22,7 @@ from typing import Any
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
+from swarmctl.knowledge.codec import MAX_CELLS, MAX_SIDE
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
 
@@ -130,6 +131,15 @@ def make_policy(text: str, seed: int, where: str) -> Any:
         raise InputError(f"{where}: mission.policy: {exc}") from None
 
 
+def check_grid_size(grid: Any, where: str) -> None:
+    """A grid a mission can fly: no larger than the knowledge messages carry (swarmctl.knowledge.codec)."""
+    if not (grid.width <= MAX_SIDE and grid.height <= MAX_SIDE and grid.width * grid.height <= MAX_CELLS):
+        raise InputError(
+            f"{where} is {grid.width} x {grid.height} cells, more than knowledge sharing carries "
+            f"(at most {MAX_SIDE} a side and {MAX_CELLS:,} in all); re-plan it with a larger `swarmctl plan --cell`"
+        )
+
+
 def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
     """The altitude and cell size to fly: the mission's, checked against the grid's, or the grid's."""
     name = f"the grid {m.grid.name}" if m.grid is not None else "the grid"
@@ -143,6 +153,7 @@ def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
                 f"{where}: {name} has {what} of {value:g} m, outside the {lo:g} to {hi:g} m a mission takes; "
                 f"re-plan it with `swarmctl plan ... {option} N` within that range"
             )
+    check_grid_size(grid, f"{where}: {name}")
     altitude = float(grid.altitude) if m.altitude is None else m.altitude
     if altitude < grid.altitude:
         raise InputError(

@@ -117,6 +117,9 @@ class DDQLPolicy:
         return replace(self.settings, phi_tolerance=phi_tolerance)
 
 
+MAX_TAU = 100.0  # a softmax temperature beyond this is a uniform draw, and inf or NaN are no number
+
+
 def split_options(rest: str) -> tuple[str, str]:
     """`PATH:key=value:...` -> (PATH, ":key=value:..."), the options being those `ddql:` takes."""
     path = rest
@@ -147,8 +150,8 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
             tau = float(options["tau"])
         except ValueError:
             tau = -1.0
-        if not tau > 0:
-            raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
+        if not 0 < tau <= MAX_TAU:
+            raise InputError(f"--policy {spec!r}: tau must be a number > 0 and <= {MAX_TAU:g}, as in ddql:PATH:tau=0.1")
     for key, allowed in _CHOICES.items():
         if options.get(key, allowed[0]) not in allowed:
             raise InputError(
