@@ -4,6 +4,7 @@ memory estimate against measured peaks, output probes, heights with units, what 
 from __future__ import annotations
 
 import json
+import shutil
 import tracemalloc
 from pathlib import Path
 
@@ -147,3 +148,16 @@ def test_rings_near_the_limits_still_pass(ring):
 def test_a_small_square_anywhere_short_of_the_poles_and_the_antimeridian_passes(lat, lon):
     ring = [[lon, lat], [lon + 0.01, lat], [lon + 0.01, lat + 0.01], [lon, lat + 0.01], [lon, lat]]
     assert lonlat_ring(ring, Path("a.geojson"), "g").shape == (5, 2)
+
+
+def test_a_recording_with_hostile_json_replays_with_notes_and_damage(tmp_path):
+    from swarmctl.replay.recording import load
+
+    folder = tmp_path / "rec"
+    shutil.copytree(Path(__file__).parent / "data/logs/sitl3-mission", folder)
+    (folder / "summary.json").write_text("[" * 10_000 + "]" * 10_000)
+    with (folder / "events.jsonl").open("a") as fh:
+        fh.write('{"t": 1, "event": "step", "vehicles": ' + "[" * 5000 + "]" * 5000 + "}\n")
+    replay = load(folder)
+    assert any("summary.json: not readable" in n and "nested" in n for n in replay.notes)
+    assert any("nested too deeply" in d.reason for d in replay.damage["events.jsonl"])
