@@ -98,28 +98,30 @@ def require_memory(nbytes: float, what: str, fix: str) -> None:
 # --- files ----------------------------------------------------------------------------------------------
 
 
-def read_limited(path: Path, what: str, limit: int) -> bytes:
-    """The bytes of `path`, a regular file of at most `limit` bytes (`what` names it in errors)."""
+def read_limited(path: Path, what: str, limit: int, field: str | None = None) -> bytes:
+    """The bytes of `path`, a regular file of at most `limit` bytes (`what` names it in errors, `field`,
+    e.g. "--signing-key", comes before the path)."""
+    at = f"{field} {path}" if field else str(path)
     try:
         info = path.stat()
     except FileNotFoundError:
-        raise InputError(f"{path}: file not found; check the path") from None
+        raise InputError(f"{at}: file not found; check the path") from None
     except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); check the path and its permissions") from None
+        raise InputError(f"{at}: cannot be read ({exc.strerror}); check the path and its permissions") from None
     if not stat.S_ISREG(info.st_mode):
         kind = "a folder" if stat.S_ISDIR(info.st_mode) else "not a regular file"
-        raise InputError(f"{path}: {kind}; give the path of {what}")
+        raise InputError(f"{at}: {kind}; give the path of {what}")
     if info.st_size > limit:
         raise InputError(
-            f"{path}: {size_text(info.st_size)}, over the {size_text(limit)} a {what} may have; give a smaller file"
+            f"{at}: {size_text(info.st_size)}, over the {size_text(limit)} a {what} may have; give a smaller file"
         )
     try:
         with path.open("rb") as fh:
             data = fh.read(limit + 1)
     except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); check the file's permissions") from None
+        raise InputError(f"{at}: cannot be read ({exc.strerror}); check the file's permissions") from None
     if len(data) > limit:  # it grew while we looked
-        raise InputError(f"{path}: over the {size_text(limit)} a {what} may have; give a smaller file")
+        raise InputError(f"{at}: over the {size_text(limit)} a {what} may have; give a smaller file")
     return data
 
 

@@ -92,8 +92,9 @@ def make_plan(
         from swarmctl.bounds import KEY_MAX_BYTES, read_limited
         from swarmctl.mavlink.codec import load_signing_key
 
-        read_limited(m.signing_key, "signing key file", KEY_MAX_BYTES)  # before it is read whole
-        key = load_signing_key(m.signing_key, field=f"{where}: mission.signing_key")
+        key_field = f"{where}: mission.signing_key"
+        read_limited(m.signing_key, "signing key file", KEY_MAX_BYTES, key_field)  # before it is read whole
+        key = load_signing_key(m.signing_key, field=key_field)
     return MissionPlan(
         resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
     )

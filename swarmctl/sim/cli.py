@@ -91,7 +91,7 @@ def mock_vehicle_command(
     parse_connection(connection, "--connect")
     key = None
     if signing_key:
-        read_limited(Path(signing_key), "signing key file", KEY_MAX_BYTES)
+        read_limited(Path(signing_key), "signing key file", KEY_MAX_BYTES, "--signing-key")
         key = load_signing_key(signing_key)
     home_position = parse_home(home)
     mock = MockAutopilot(
