@@ -81,9 +81,10 @@ def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
 def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwork, dict]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
-    Raises InputError naming the file when it is missing, not a checkpoint, from another architecture,
-    variant or version, damaged (weights not matching their hash, NaN or infinite weights), or made
-    for another observation size than `window`.
+    Raises InputError naming the file when it is missing, over CHECKPOINT_MAX_BYTES, not a checkpoint,
+    from another architecture, variant or version, damaged (weights not matching their hash, NaN or
+    infinite weights, a stored world config WorldConfig refuses), or made for another observation size
+    than `window`.
     """
     path = Path(path)
     if not path.is_file():
