@@ -3,7 +3,7 @@
 `ddql:PATH` samples from softmax(Q / tau) with tau = 0.1 (the paper's "DDQL Soft"; it keeps stuck
 vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as `:key=value`:
 
-- `tau=T`: the softmax temperature (default 0.1);
+- `tau=T`: the softmax temperature (default 0.1; 0 < T <= 100);
 - `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
   LA(n) removes them from its value map (default remove; keep is the paper's observation);
 - `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there and every
