@@ -156,7 +156,7 @@ def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_withou
 
 
 BAD = [
-    (["demo", "--uavs", "0"], "--uavs 0"),
+    (["demo", "--uavs", "0"], "'--uavs'"),
     (["demo", "--policy", "oracle"], "oracle"),
     (["demo", "--policy", "ddql:/nonexistent/model.pt"], "model.pt"),
     (["demo", "--speedup", "-1"], "--speedup"),

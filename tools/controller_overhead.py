@@ -1,7 +1,8 @@
 """Controller overhead per decision step with 3, 12 and 50 mock vehicles at the Chicago Loop.
 
 For each swarm size: start the mock vehicles (in this process, over loopback UDP), fly a search for
---search seconds with the given policy, and report per decision round the policy time, the whole
+--search seconds with the given policy (recording it as fly and demo do, the running summary.json
+included), and report per decision round the policy time, the whole
 round, and the controller's own part (the round minus the time spent waiting for vehicles to reach
 their cells and for detector reports). The mocks run in a child process (or, with --same-process,
 in threads next to the controller, where they compete with it for the interpreter lock); on a small
@@ -28,6 +29,7 @@ sys.path.insert(0, str(ROOT))
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
+from swarmctl.mission.service import keep_summary  # noqa: E402
 from swarmctl.sim.swarm import SimSwarm, sim_plan  # noqa: E402
 
 
@@ -57,9 +59,18 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             plan = sim_plan(grid, specs, radio, policy, seed=seed, name="overhead", **kw)
         rec = Recorder(tmp)
         controller = Controller(plan, rec)
+
+        async def fly() -> str:  # with the running summary.json, as fly and demo keep it
+            summaries = asyncio.ensure_future(keep_summary(controller, rec))
+            try:
+                return await controller.run()
+            finally:
+                summaries.cancel()
+                await asyncio.gather(summaries, return_exceptions=True)
+
         started = time.monotonic()
         try:
-            outcome = asyncio.run(controller.run())
+            outcome = asyncio.run(fly())
         finally:
             rec.close()
             if same_process:

@@ -8,8 +8,9 @@ some) and kinds it does not name are skipped; `check_event(..., strict=True)` al
 a test can hold a fresh recording to the table.
 
 Field kinds: `int`, `number` (int or float), `str`, `bool`, `cell` ([x, y] grid indices, ints >= 0),
-`cells` (a list of cells), `latlon` ([lat, lon] degrees), `latlons` (a list of them), `numbers`,
-`strs`, and `records NAME` (a list of objects following the record schema NAME below).
+`cells` (a list of cells), `xy` ([x, y] ints of any sign: a cell that may lie off the grid), `latlon`
+([lat, lon] degrees), `latlons` (a list of them), `numbers`, `strs`, and `records NAME` (a list of
+objects following the record schema NAME below).
 """
 
 from __future__ import annotations
@@ -154,7 +155,7 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             _VEHICLE,
             _STEP,
             Field("cell", "cell", "cells", "where the vehicle was"),
-            Field("proposed", "cell", "cells", "the cell the policy wanted"),
+            Field("proposed", "xy", "cells", "the cell the policy wanted (off the grid when the move left it)"),
             Field("reason", "str", "-", "why (outside, blocked, contested ...)"),
         ),
     ),
@@ -259,6 +260,7 @@ _CHECKS = {
     "bool": lambda v: isinstance(v, bool),
     "cell": _is_cell,
     "cells": lambda v: isinstance(v, list) and all(_is_cell(c) for c in v),
+    "xy": lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(c) for c in v),
     "latlon": _is_latlon,
     "latlons": lambda v: isinstance(v, list) and all(_is_latlon(c) for c in v),
     "numbers": lambda v: isinstance(v, list) and all(_is_number(c) for c in v),

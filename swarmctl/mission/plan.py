@@ -22,6 +22,7 @@ from typing import Any
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
+from swarmctl.knowledge.codec import MAX_CELLS, MAX_SIDE
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
 
@@ -88,9 +89,12 @@ def make_plan(
         detectors.update({i: socket for i in keep})
     key = None
     if m.signing_key is not None:
+        from swarmctl.bounds import KEY_MAX_BYTES, read_limited
         from swarmctl.mavlink.codec import load_signing_key
 
-        key = load_signing_key(m.signing_key, field=f"{where}: mission.signing_key")
+        key_field = f"{where}: mission.signing_key"
+        read_limited(m.signing_key, "signing key file", KEY_MAX_BYTES, key_field)  # before it is read whole
+        key = load_signing_key(m.signing_key, field=key_field)
     return MissionPlan(
         resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
     )
@@ -128,6 +132,15 @@ def make_policy(text: str, seed: int, where: str) -> Any:
         raise InputError(f"{where}: mission.policy: {exc}") from None
 
 
+def check_grid_size(grid: Any, where: str) -> None:
+    """A grid a mission can fly: no larger than the knowledge messages carry (swarmctl.knowledge.codec)."""
+    if not (grid.width <= MAX_SIDE and grid.height <= MAX_SIDE and grid.width * grid.height <= MAX_CELLS):
+        raise InputError(
+            f"{where} is {grid.width} x {grid.height} cells, more than knowledge sharing carries "
+            f"(at most {MAX_SIDE} a side and {MAX_CELLS:,} in all); re-plan it with a larger `swarmctl plan --cell`"
+        )
+
+
 def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
     """The altitude and cell size to fly: the mission's, checked against the grid's, or the grid's."""
     name = f"the grid {m.grid.name}" if m.grid is not None else "the grid"
@@ -141,6 +154,7 @@ def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
                 f"{where}: {name} has {what} of {value:g} m, outside the {lo:g} to {hi:g} m a mission takes; "
                 f"re-plan it with `swarmctl plan ... {option} N` within that range"
             )
+    check_grid_size(grid, f"{where}: {name}")
     altitude = float(grid.altitude) if m.altitude is None else m.altitude
     if altitude < grid.altitude:
         raise InputError(

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import logging
+import math
 import signal
 import sys
 import time
@@ -16,6 +18,8 @@ from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
+
+log = logging.getLogger(__name__)
 
 OUTCOME_EXIT = {
     "complete": EXIT_OK,
@@ -97,10 +101,33 @@ class LiveView:
         self._lines = len(rows)
 
 
+SUMMARY_EVERY_S = 2.0  # the running summary.json is rewritten this often, and after every state change
+SUMMARY_POLL_S = 0.25  # how soon after a state change
+
+
+async def keep_summary(controller: Controller, rec: Recorder, extra_summary: Any = None) -> None:
+    """Keep summary.json up to date while the mission runs (`"running": true`), so that `watch cat
+    summary.json` follows it and a crash leaves the latest state: rewritten every SUMMARY_EVERY_S and
+    within SUMMARY_POLL_S of every event that changes it (Recorder.changes). Runs until cancelled."""
+    loop = asyncio.get_running_loop()
+    changes, written = -1, -math.inf
+    while True:
+        if rec.changes != changes or loop.time() - written >= SUMMARY_EVERY_S:
+            changes, written = rec.changes, loop.time()
+            try:
+                summary = controller.summary(extra_summary(controller) if extra_summary else None)
+                rec.write_summary(summary, running=True)
+            except Exception as exc:  # the flight goes on without it; the final summary is written at the end
+                log.warning("the running summary.json cannot be written (%s); it is written at the end", exc)
+                return
+        await asyncio.sleep(SUMMARY_POLL_S)
+
+
 def run_controller(
     plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
 ) -> tuple[int, dict]:
-    """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording; exit status."""
+    """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording (summary.json kept up
+    to date while it flies); exit status."""
     rec = Recorder(folder)
     rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
     controller = Controller(plan, rec, view=view)
@@ -114,16 +141,19 @@ def run_controller(
                 installed.append(sig)
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread, or Windows
                 pass
+        summaries = asyncio.ensure_future(keep_summary(controller, rec, extra_summary))
         try:
             return await controller.run()
         finally:
+            summaries.cancel()
+            await asyncio.gather(summaries, return_exceptions=True)
             for sig in installed:
                 loop.remove_signal_handler(sig)
 
     try:
         outcome = asyncio.run(main())
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
-        rec.write_summary(summary)
+        rec.write_summary(summary, running=False)
         write_targets_geojson(folder / "targets.geojson", summary)
         write_targets_kml(folder / "targets.kml", summary)
     finally:

@@ -16,17 +16,19 @@ trained it). Version 1 files (no hash, no variant) still load as the paper's var
 from __future__ import annotations
 
 import hashlib
-import math
 import pickle
 import zipfile
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from swarmctl.errors import InputError
+from swarmctl.bounds import CHECKPOINT_MAX_BYTES, size_text
+from swarmctl.errors import InputError, ScenarioError
 from swarmctl.policy.qnet import ARCHITECTURE, QNetwork
 from swarmctl.world.beliefs import PAPER_VARIANT
+from swarmctl.world.config import WorldConfig
 
 FORMAT = "swarmctl-ddql"
 VERSION = 2
@@ -79,13 +81,19 @@ def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
 def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwork, dict]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
-    Raises InputError naming the file when it is missing, not a checkpoint, from another architecture,
-    variant or version, damaged (weights not matching their hash, NaN or infinite weights), or made
-    for another observation size than `window`.
+    Raises InputError naming the file when it is missing, over CHECKPOINT_MAX_BYTES, not a checkpoint,
+    from another architecture, variant or version, damaged (weights not matching their hash, NaN or
+    infinite weights, a stored world config WorldConfig refuses), or made for another observation size
+    than `window`.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such checkpoint file; train one with `swarmctl train ... --out {path}`")
+    if path.stat().st_size > CHECKPOINT_MAX_BYTES:
+        raise InputError(
+            f"{path}: {size_text(path.stat().st_size)}, over the {size_text(CHECKPOINT_MAX_BYTES)} a checkpoint "
+            "may have; give a .pt file written by `swarmctl train`"
+        )
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (
@@ -150,10 +158,26 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
         ) from None
     net.eval()
     info = {k: v for k, v in payload.items() if k != "state_dict"}
-    for key in ("fov", "rho", "sigma2", "phi_cutoff"):
-        value = info["world"].get(key)
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-        ):
-            raise InputError(f"{path}: world.{key} = {value!r} is not a finite number")
+    _check_world(info["world"], f, path)
     return net, info
+
+
+def _check_world(world: dict, window: int, path: Path) -> None:
+    """The stored world config, as WorldConfig validates one (finite numbers, ranges), with the network's window."""
+    known = {f.name: f.type for f in fields(WorldConfig)}
+    for key, value in world.items():
+        kind = known.get(key)
+        if kind is None:
+            continue  # a field of a newer or older swarmctl, never read
+        types = {"int": int, "float": (int, float), "str": str, "bool": bool}.get(kind, object)
+        if not isinstance(value, types) or (kind != "bool" and isinstance(value, bool)):
+            raise InputError(f"{path}: world.{key} = {value!r} is not a {kind}; use an intact checkpoint")
+    try:
+        WorldConfig(**{k: v for k, v in world.items() if k in known})
+    except ScenarioError as exc:
+        raise InputError(f"{path}: the stored world config is not valid ({exc}); use an intact checkpoint") from None
+    if world.get("window", window) != window:
+        raise InputError(
+            f"{path}: world.window = {world.get('window')!r} differs from the network's {window}; "
+            "use an intact checkpoint"
+        )

@@ -3,7 +3,7 @@
 `ddql:PATH` samples from softmax(Q / tau) with tau = 0.1 (the paper's "DDQL Soft"; it keeps stuck
 vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as `:key=value`:
 
-- `tau=T`: the softmax temperature (default 0.1);
+- `tau=T`: the softmax temperature (default 0.1; 0 < T <= 100);
 - `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
   LA(n) removes them from its value map (default remove; keep is the paper's observation);
 - `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there and every
@@ -119,6 +119,9 @@ class DDQLPolicy:
         return replace(self.settings, phi_tolerance=phi_tolerance)
 
 
+MAX_TAU = 100.0  # a softmax temperature beyond this is a uniform draw, and inf or NaN are no number
+
+
 def split_options(rest: str) -> tuple[str, str]:
     """`PATH:key=value:...` -> (PATH, ":key=value:..."), the options being those `ddql:` takes."""
     path = rest
@@ -150,8 +153,8 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
             tau = float(options["tau"])
         except ValueError:
             tau = -1.0
-        if not tau > 0:
-            raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
+        if not 0 < tau <= MAX_TAU:
+            raise InputError(f"--policy {spec!r}: tau must be a number > 0 and <= {MAX_TAU:g}, as in ddql:PATH:tau=0.1")
     for key, allowed in _CHOICES.items():
         if options.get(key, allowed[0]) not in allowed:
             raise InputError(
