@@ -396,8 +396,9 @@ def beliefs_from_knowledge(
 
     phi_hat on an explored cell is the larger of the phi reported for it (a detector's, or 0 where the
     cell was explored from the vehicle's position alone) and the value map of the targets the agent
-    knows (swarmctl.world.scenario.value_map with the settings' sigma2 and cut-off), as the simulator's
-    value map is of its targets: a target learnt later raises the value of the cells explored before.
+    knows (swarmctl.world.scenario.value_map with the settings' sigma2 and cut-off, quantised as phi
+    is), as the simulator's value map is of its targets: a target learnt later raises the value of the
+    cells explored before.
 
     vehicles: the swarm's size N (default: enough for every vehicle id the knowledges name);
     settings: the observation settings (default the paper's, with the quantised phi's tolerance);
@@ -449,8 +450,9 @@ def beliefs_from_knowledge(
 
 
 def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.ndarray]:
-    """The value map of each agent's known targets ((A, W, H) bool), computed once per distinct set
-    (agents sharing knowledge mostly know the same targets)."""
+    """The value map of each agent's known targets ((A, W, H) bool), quantised as phi is (so where a
+    detector reported the true phi, the max leaves it unchanged: quantising is monotone), computed once
+    per distinct set (agents sharing knowledge mostly know the same targets)."""
     w, h = targets.shape[1:]
     maps: dict[bytes, np.ndarray] = {}
     out = []
@@ -458,6 +460,6 @@ def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.
         cells = np.argwhere(mask)
         key = cells.tobytes()
         if key not in maps:
-            maps[key] = value_map(cells, w, h, settings.sigma2, settings.phi_cutoff)
+            maps[key] = dequantise_phi(quantise_phi(value_map(cells, w, h, settings.sigma2, settings.phi_cutoff)))
         out.append(maps[key])
     return out
