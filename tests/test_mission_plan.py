@@ -16,7 +16,7 @@ from swarmctl.policy.checkpoint import save_checkpoint
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.sim.swarm import SimSwarm
 from tests.geo_helpers import feature, to_lonlat, write_geojson
-from tests.mission_support import small_grid, small_mission
+from tests.mission_support import our_threads, small_grid, small_mission
 
 
 def plan_of(tmp_path, grid=None, **mission):
@@ -154,12 +154,14 @@ def test_the_demo_flies_its_own_settings_over_a_mission_files(tmp_path):
     with SimSwarm(small_grid(), uavs=2, seed=0, mission_id=base.mission.id) as swarm:
         plan = swarm.plan("frontier", base=base, time_limit=45.0, mission_file=path)
         default = swarm.plan("random", grid=tmp_path / "grid.npz")
+        onboard = swarm.plan("random", radio=True)  # the loopback radio as the channel of separate processes
+        assert onboard.spec.knowledge.channel.port == swarm.radio.address[1]
+    assert not our_threads()  # the radio stopped with the swarm
     spec = plan.spec
     assert (spec.mission.name, spec.mission.id, spec.battery.return_below) == ("small", 42, 25)  # the file's
     assert spec.timing.step_period == DEMO_SETTINGS["step_period"] and spec.flight.telemetry_hz == 20.0  # the demo's
     assert spec.timing.time_limit == 45.0 and plan.mission_file == path  # the caller's
     assert [v.name for v in spec.vehicles] == ["uav1", "uav2"] and spec.knowledge.channel is None  # the bus
-    assert swarm.plan("random", radio=True).spec.knowledge.channel.port == swarm.radio.address[1]
     assert default.spec.mission.name == "demo" and default.spec.timing.time_limit == DEMO_SETTINGS["time_limit"]
     assert default.spec.battery.return_below == 15 and default.spec.mission.altitude == 40.0
     assert default.spec.mission.grid == tmp_path / "grid.npz"  # copied into the recording
