@@ -155,7 +155,7 @@ def test_onboard_mode_two_processes_share_only_through_the_knowledge_channel(tmp
 
     grid = small_grid()
     with SimSwarm(grid, uavs=3, seed=7, speedup=30.0) as swarm:
-        plans = [swarm.plan("frontier", end_action="hover", time_limit=120.0) for _ in range(2)]
+        plans = [swarm.plan("frontier", end_action="hover", time_limit=120.0, radio=True) for _ in range(2)]
         plans[0].only, plans[1].only = [0, 1], [2]
         recs = [Recorder(tmp_path / f"p{i}") for i in range(2)]
         controllers = [Controller(p, r) for p, r in zip(plans, recs)]

@@ -77,9 +77,21 @@ class IllegalTransition(RuntimeError):
 class Agent:
     """One vehicle's controller: its Vehicle, Knowledge, exchange, sensor feed, state and counters."""
 
-    def __init__(self, index: int, spec: VehicleSpec, vehicle: Any, exchange: KnowledgeExchange, feed: SensorFeed):
+    def __init__(
+        self,
+        index: int,
+        spec: VehicleSpec,
+        vehicle: Any,
+        exchange: KnowledgeExchange,
+        feed: SensorFeed,
+        detector: Any = None,
+    ):
         self.index, self.spec, self.vehicle = index, spec, vehicle
         self.exchange, self.feed = exchange, feed
+        self.detector = detector  # "mavlink" or a local socket (Endpoint); None: sensing from position only
+        self.visited: set[tuple[int, int]] = set()  # cells the vehicle reached (its reports count there)
+        self.sensor_dropped = 0  # report entries outside the footprints of the cells it reached
+        self.unexpected_reports = False  # reports came although the mission gives it no detector
         self.knowledge: Knowledge = exchange.knowledge
         self.state = State.NEW
         self.cell: tuple[int, int] | None = None

@@ -17,6 +17,7 @@ import swarmctl
 from swarmctl.bounds import SEED, real, whole, writable_folder
 from swarmctl.errors import EXIT_FAILED, InputError
 from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, TimingTable
+from swarmctl.world.config import CHANNELS
 
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
@@ -121,6 +122,23 @@ def view_options(func):
     help="Upload the area's boundary to every mock vehicle as its geofence before take-off "
     "(also on when the --mission file says fence = true).",
 )
+@click.option(
+    "--channel",
+    type=click.Choice(CHANNELS),
+    default="ideal",
+    show_default=True,
+    help="Knowledge between the vehicles' agents (shared in this process): ideal, none, model (the "
+    "simulator's distance-based loss at the grid's cell size) or fixed (--loss).",
+)
+@click.option(
+    "--loss", type=real(0.0, 1.0), default=0.0, show_default=True, help="Packet-loss probability for --channel fixed."
+)
+@click.option(
+    "--no-detectors",
+    is_flag=True,
+    help="Mock vehicles without detectors: a coverage search (cells explored from the vehicles' positions, "
+    "nothing found).",
+)
 @view_options
 def demo_command(
     uavs: int,
@@ -134,14 +152,18 @@ def demo_command(
     time_limit: float,
     gcs: str | None,
     fence: bool,
+    channel: str,
+    loss: float,
+    no_detectors: bool,
     quiet: bool,
     no_live: bool,
 ) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
-    policy, hovers over them, then carries out the end action. Writes the recording (mission.tlog,
-    events.jsonl, summary.json, grid.npz) and mission.png to --out.
+    policy, hovers over them, then carries out the end action. The vehicles' agents share knowledge in
+    this process (--channel: with the simulator's losses). Writes the recording (mission.tlog,
+    events.jsonl, knowledge.jsonl, summary.json, grid.npz) and mission.png to --out.
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
@@ -150,6 +172,7 @@ def demo_command(
     from swarmctl.mission.spec import GroundStation, load_spec, parse_option
     from swarmctl.replay.truth import write_truth
     from swarmctl.sim.swarm import SimSwarm
+    from swarmctl.world.channel import Channel
 
     settings: dict[str, Any] = dict(end_action=end_action, time_limit=time_limit)
     if gcs is not None:
@@ -180,8 +203,11 @@ def demo_command(
     if targets is not None and targets > room:
         raise InputError(f"--targets {targets}: the grid's largest free region holds {room} besides the launch cells")
     folder = _out_folder(out, "demo")
+    model = Channel(channel, cell_size=grid.cell, loss=loss)
     try:
-        swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **at)
+        swarm = SimSwarm(
+            grid, uavs=uavs, seed=seed, speedup=speedup, channel=model, carry_detectors=not no_detectors, **at
+        )
         if targets is not None and targets != uavs:
             from swarmctl.sim.swarm import hide_targets
 
@@ -193,7 +219,8 @@ def demo_command(
         if not quiet:
             click.echo(
                 f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
-                f"hidden targets (seed {seed}), policy {field_policy.spec}, speed-up {speedup:g}x"
+                f"hidden targets (seed {seed}){', no detectors: a coverage search' if no_detectors else ''}, "
+                f"policy {field_policy.spec}, knowledge channel {channel}, speed-up {speedup:g}x"
                 f"{', geofence on' if plan.spec.mission.fence else ''} -> {folder}",
                 err=True,
             )
@@ -206,7 +233,7 @@ def demo_command(
                 "hidden_targets": swarm.targets.tolist(),
                 "speedup": speedup,
                 "seed": seed,
-                "knowledge_radio": {"forwarded": swarm.radio.forwarded, "lost": swarm.radio.dropped},
+                "knowledge_bus": c.bus.counters(),
             },
         )
     draw_mission(folder, grid, swarm.targets)
@@ -253,8 +280,9 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
 @click.option(
     "--detector",
     default=None,
-    help="Local UDP socket the onboard detector writes its TUNNEL reports to, udp:HOST:PORT "
-    "(default: reports arrive on the vehicle's MAVLink link).",
+    help="The vehicle's detector: mavlink (its TUNNEL reports come on the vehicle's MAVLink link) or "
+    "udp:HOST:PORT (a local socket it writes them to). Default: the mission's [[vehicles]] detector; "
+    "none there: a coverage search.",
 )
 @click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Recording folder.")
@@ -270,7 +298,8 @@ def agent_command(
     quiet: bool,
     no_live: bool,
 ) -> None:
-    """Onboard mode: fly one vehicle (on its companion computer); peers over the knowledge channel."""
+    """Onboard mode: fly one vehicle (on its companion computer); peers over the [knowledge] channel,
+    which the mission must give."""
     from swarmctl.mission.plan import make_plan
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec

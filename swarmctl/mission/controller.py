@@ -25,8 +25,6 @@ import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_polygon
-from swarmctl.knowledge.exchange import KnowledgeExchange
-from swarmctl.knowledge.model import Knowledge
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
 from swarmctl.mission.agent import Agent, State
@@ -36,28 +34,10 @@ from swarmctl.mission.launch import start
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 from swarmctl.mission.rounds import search
+from swarmctl.mission.sharing import link_outlet, make_bus, open_exchange
 from swarmctl.world.guard import SafetyGuard
 
 log = logging.getLogger(__name__)
-
-
-class _TapSocket:
-    """Wraps a KnowledgeExchange's socket so the recorder sees every datagram in and out."""
-
-    def __init__(self, sock: Any, recorder: Recorder):
-        self._sock, self._rec = sock, recorder
-
-    def sendto(self, data: bytes, addr: Any) -> int:
-        self._rec.datagram(data)
-        return self._sock.sendto(data, addr)
-
-    def recvfrom(self, size: int) -> tuple[bytes, Any]:
-        data, addr = self._sock.recvfrom(size)
-        self._rec.datagram(data)
-        return data, addr
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._sock, name)
 
 
 class Controller:
@@ -82,6 +62,7 @@ class Controller:
         self.connector: Any = None  # swarmctl.mavlink.connect.Connector, made by _open
         self.mission_error: InputError | None = None  # what stopped the mission: raised by run()
         self.sources: list[UdpSensorSource] = []
+        self.bus = make_bus(plan)  # ground mode: the agents share in memory (None: onboard, the channel)
         gcs = plan.spec.mission.gcs
         self.gcs = GcsForwarder(gcs.host, gcs.port) if gcs is not None else None
         self.step = 0
@@ -153,20 +134,14 @@ class Controller:
                 continue
             self.connector.expect(spec.connection)
             feed = SensorFeed(i, plan.spec.mission.id, w, h)
-            if i in plan.detectors:
-                socket = plan.detectors[i]
-                self.sources.append(UdpSensorSource(feed, socket.host, socket.port).start())
-            channel = plan.spec.knowledge.channel
-            exchange = KnowledgeExchange(
-                Knowledge(w, h, vehicle_id=i),
-                plan.spec.mission.id,
-                (channel.host, channel.port),
-                system_id=spec.sysid,
-                digest_every=plan.spec.knowledge.digest_every,
-                push=plan.spec.knowledge.push,
-            )
-            exchange.sock = _TapSocket(exchange.sock, self.rec)
-            self.agents.append(Agent(i, spec, NotConnected(spec.name), exchange, feed))
+            detector = plan.detectors.get(i)
+            if detector is not None and not isinstance(detector, str):  # a local socket, not its link
+                self.sources.append(UdpSensorSource(feed, detector.host, detector.port).start())
+            exchange = open_exchange(plan, i, spec, self.rec, self.bus)
+            agent = Agent(i, spec, NotConnected(spec.name), exchange, feed, detector=detector)
+            if self.bus is not None:
+                exchange.outlet = link_outlet(agent)  # its frames once, on its own vehicle's link
+            self.agents.append(agent)
 
     def _watch_link(self, link: Any) -> None:
         """A link the connector opened: record it, count its losses, follow its vehicles, forward it."""

@@ -140,7 +140,7 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
     ),
     "targets": (
         "events.jsonl",
-        "targets a vehicle's detector reported for the first time",
+        "targets a vehicle's detector reported for the first time (within the footprint of a cell it reached)",
         (
             _VEHICLE,
             Field("cells", "cells", "cells", "the target cells"),
@@ -166,8 +166,15 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
     ),
     "no_report": (
         "events.jsonl",
-        "no detector report arrived for a cell the vehicle reached (sense timeout)",
+        "no report from the vehicle's detector arrived for a cell the vehicle reached (sense timeout); "
+        "the cell's footprint is explored all the same, and a late report counts when it comes",
         (_VEHICLE, Field("cell", "cell", "cells", "the cell"), _STEP),
+    ),
+    "report_dropped": (
+        "events.jsonl",
+        "detector reports of a round named cells or targets outside the footprints of the cells the vehicle "
+        "reached (or a cell it never reached): those were not used",
+        (_VEHICLE, _STEP, Field("dropped", "int", "-", "cells and targets dropped this round")),
     ),
     "step": (
         "events.jsonl",

@@ -14,6 +14,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from swarmctl.mission import sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
@@ -50,13 +51,14 @@ def describe(plan: MissionPlan) -> list[str]:
         "fence: the area's boundary, uploaded to every vehicle before take-off"
         if m.fence
         else "fence: none (the vehicles' own fence settings apply)",
-        f"knowledge channel {spec.knowledge.channel}",
+        *sharing.describe(plan),
     ]
     for i, v in enumerate(spec.vehicles):
         if plan.only is not None and i not in plan.only:
             continue
         autopilot = v.autopilot or "autopilot as its heartbeat says"
-        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}")
+        detector = sharing.detector_text(plan.detectors.get(i))
+        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}, {detector}")
     return lines
 
 

@@ -129,6 +129,25 @@ GroundStation = _connection(
     ("udpout",), "is not a UDP address to send to", "gcs", "udpout:127.0.0.1:14550", " (QGroundControl listens there)"
 )
 DetectorSocket = _connection(("udpin",), "is not a local UDP socket", "detector", "udp:127.0.0.1:14650")
+ON_LINK = "mavlink"  # a detector whose reports come on the vehicle's own MAVLink link
+_SOCKET = TypeAdapter(DetectorSocket)
+
+
+def _detector(value: Any) -> Endpoint | str:
+    """ON_LINK, or a local UDP socket the detector sends its reports to."""
+    if value == ON_LINK:
+        return ON_LINK
+    try:
+        return _SOCKET.validate_python(value)
+    except ValidationError:
+        raise SpecError(
+            f'is neither "{ON_LINK}" nor a local UDP socket (udp:HOST:PORT)',
+            f'write detector = "{ON_LINK}" (reports on the vehicle\'s own link) or detector = "udp:127.0.0.1:14650"',
+            example="udp:127.0.0.1:14650",
+        ) from None
+
+
+Detector = Annotated[Endpoint | str, PlainValidator(_detector), PlainSerializer(str, when_used="json")]
 
 
 def parse_option(kind: Any, text: str, option: str) -> Any:
@@ -143,9 +162,9 @@ def parse_option(kind: Any, text: str, option: str) -> Any:
         raise InputError(f"{option} {text!r}: {cause.rule}; give for example {option} {cause.example}") from None
 
 
-def parse_detector(text: str, option: str = "--detector") -> Endpoint:
-    """A detector socket given on the command line (udp:HOST:PORT)."""
-    return parse_option(DetectorSocket, text, option)
+def parse_detector(text: str, option: str = "--detector") -> Endpoint | str:
+    """A detector given on the command line: ON_LINK or a local socket (udp:HOST:PORT)."""
+    return parse_option(Detector, text, option)
 
 
 # --- the tables ----------------------------------------------------------------------------------------
@@ -358,10 +377,13 @@ class BatteryTable(Table):
 class KnowledgeTable(Table):
     """[knowledge]: how the agents share what they know (TUNNEL messages)."""
 
-    channel: SendTo = setting(
-        Endpoint("udpout", "127.0.0.1", 14600),
-        "where the agents send their TUNNEL messages (a MAVLink router or radio that forwards them to every agent)",
+    channel: SendTo | None = setting(
+        None,
+        "where agents in separate processes (`swarmctl agent`) send their TUNNEL messages: a MAVLink router or "
+        "telemetry mesh that forwards them to every agent; `swarmctl fly` shares in its own process and needs none",
         span="udpout:HOST:PORT",
+        example="udpout:127.0.0.1:14600",
+        default_text="none (needed by `swarmctl agent`)",
     )
     digest_every: int = setting(5, "steps between digests of what an agent knows", ge=1, le=1000, unit="steps")
     push: bool | None = setting(
@@ -390,12 +412,13 @@ class VehicleSpec(Table):
         example="ardupilot",
         default_text="as its heartbeat says",
     )
-    detector: DetectorSocket | None = setting(
+    detector: Detector | None = setting(
         None,
-        "a local socket its detector reports to",
-        span="udp:HOST:PORT",
-        example="udp:127.0.0.1:14650",
-        default_text="its MAVLink link",
+        'its detector: "mavlink" (reports on its own MAVLink link) or the local socket it reports to; '
+        "the controller waits for a report after each cell reached (sense_timeout)",
+        span='"mavlink", udp:HOST:PORT',
+        example="mavlink",
+        default_text="none: a coverage search (cells explored from its position, nothing to find)",
     )
 
 
