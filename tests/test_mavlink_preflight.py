@@ -240,3 +240,32 @@ def test_home_is_asked_for_again_when_the_ekf_has_a_position_but_no_home_came():
                 return counts
 
     assert run(scenario(), timeout=30)["HOME_POSITION"] == 2
+
+
+@pytest.mark.parametrize("mock_first", [False, True], ids=["controller listening first", "mock 1 s earlier"])
+def test_a_plain_pymavlink_client_on_udpin_gets_positions_whenever_the_mock_starts(mock_first):
+    """The issue's set-up: a plain pymavlink client listening on udpin, the mock sending to it (udpout),
+    started while the client listens or 1 s before; one request after the first heartbeat starts the stream."""
+    import socket
+
+    from tests.sitl_support import mavlink_client, request_message_interval, wait_message
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    mock = MockAutopilot(sysid=1, connect=f"udpout:127.0.0.1:{port}", speedup=1.0, ready_after=12.0)  # GPS at 3 s
+    try:
+        if mock_first:
+            mock.start()
+            time.sleep(1.0)
+        with mavlink_client(f"udpin:0.0.0.0:{port}") as conn:
+            if not mock_first:
+                mock.start()
+            wait_message(conn, "HEARTBEAT", 5, sysid=1)
+            request_message_interval(conn, 1, MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 5.0)
+            first = wait_message(conn, "GLOBAL_POSITION_INT", 3, sysid=1)
+            fix = wait_message(conn, "GLOBAL_POSITION_INT", 5, sysid=1, condition=lambda m: m.lat != 0)
+    finally:
+        mock.stop()
+    assert first.lat == 0 and abs(fix.lat / 1e7 - HOME[0]) < 1e-6  # zeros until the GPS fix, then home
+    assert requests(mock) == 1
