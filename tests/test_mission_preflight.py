@@ -71,7 +71,7 @@ def test_a_vehicle_not_ready_in_time_fails_naming_its_last_reason(tmp_path):
 
 def test_a_stopped_mission_counts_no_step_timeouts(tmp_path):
     """Slow vehicles (0.5 m/s): the stop comes while they fly to their cells; those aborted waits are not
-    timeouts (the derived step timeout, 45 vehicle seconds a cell, is never reached either)."""
+    timeouts (the derived step timeout, 46 vehicle seconds a cell, is never reached either)."""
     grid = small_grid()
     with SimSwarm(grid, uavs=3, seed=3, speedup=30.0, speed=0.5) as swarm:
         plan = swarm.plan("frontier", end_action="land", time_limit=120.0)
@@ -89,7 +89,7 @@ def test_a_stopped_mission_counts_no_step_timeouts(tmp_path):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert [v["step_timeouts"] for v in summary["vehicles"]] == [0, 0, 0]
     limits = events(tmp_path, "limits")[0]
-    assert limits["speed"] == 0.5 and limits["step_timeout"] == pytest.approx(45.4, abs=0.1)
+    assert limits["speed"] == 0.5 and limits["step_timeout"] == pytest.approx(46.4, abs=0.1)
 
 
 def test_a_complete_mission_ending_in_rtl_says_who_hovered_where_and_the_whole_flight_counts(tmp_path):

@@ -49,6 +49,7 @@ class FlightLimits:
     rtl_loiter_s: float  # hover over home before the return's descent
     spool_s: float  # from the take-off command to leaving the ground
     disarm_s: float  # from touching down to disarmed
+    settle_s: float = 0.5  # from arriving to holding within the reach tolerance (0.5 m)
     read: tuple[str, ...] = field(default=())
 
     def __post_init__(self) -> None:
@@ -56,7 +57,7 @@ class FlightLimits:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"FlightLimits.{name} must be a positive number of m/s, not {value!r}")
-        for name in ("land_alt_low", "rtl_alt", "rtl_loiter_s", "spool_s", "disarm_s"):
+        for name in ("land_alt_low", "rtl_alt", "rtl_loiter_s", "spool_s", "disarm_s", "settle_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"FlightLimits.{name} must be a number >= 0, not {value!r}")
@@ -66,9 +67,10 @@ class FlightLimits:
 
     # --- physics (vehicle seconds) ----------------------------------------------------------------------
     def move_s(self, horizontal: float, vertical: float = 0.0) -> float:
-        """A move of `horizontal` metres and `vertical` metres up (> 0) or down (< 0), both at once."""
+        """A move of `horizontal` metres and `vertical` metres up (> 0) or down (< 0), both at once, and
+        settling at the target."""
         up_down = vertical / self.climb if vertical > 0 else -vertical / self.descent
-        return max(travel_s(horizontal, self.speed, self.accel), up_down)
+        return max(travel_s(horizontal, self.speed, self.accel), up_down) + self.settle_s
 
     def takeoff_s(self, altitude: float) -> float:
         """From the take-off command to `altitude` metres above home."""

@@ -907,8 +907,8 @@ class MockAutopilot:
         reason = None
         if self.arming_refusal is not None:
             reason = self.arming_refusal
-        elif self._not_armable() is not None:
-            reason = self._not_armable()
+        elif (not_armable := self._not_armable()) is not None:
+            reason = not_armable
         elif not self.fence.allows(self.lat, self.lon):
             reason = p.outside_fence_reason
         elif p.armable_modes is not None and self.mode_name not in p.armable_modes:

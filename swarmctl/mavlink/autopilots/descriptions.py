@@ -82,8 +82,9 @@ class ArduPilotAutopilot(Autopilot):
         "RTL_SPEED",  # 0: the return's speed (0: WPNAV_SPEED)
         "RTL_LOIT_TIME",  # 5000 ms over home before descending
     )
-    # SITL: it leaves the ground 4.5 s after NAV_TAKEOFF's ack, and disarms 3.4-3.6 s after touching down
-    spool_s, disarm_s = 5.0, 4.0
+    # SITL: it leaves the ground 4.5 s after NAV_TAKEOFF's ack, disarms 3.4-3.6 s after touching down, and
+    # holds within 0.5 m of a target 0.2 s after coming within 1 m
+    spool_s, disarm_s, settle_s = 5.0, 4.0, 0.5
 
     @property
     def modes(self) -> Mapping[str, int]:
@@ -116,6 +117,7 @@ class ArduPilotAutopilot(Autopilot):
             rtl_loiter_s=_value(values, "RTL_LOIT_TIME", 5.0, 0.001),
             spool_s=self.spool_s,
             disarm_s=self.disarm_s,
+            settle_s=self.settle_s,
             read=tuple(n for n in self.limit_parameters if n in values),
         )
 
@@ -186,8 +188,9 @@ class PX4Autopilot(Autopilot):
         "RTL_RETURN_ALT",  # 30 m
         "RTL_LAND_DELAY",  # 0 s over home before landing (< 0: hover there, not land)
     )
-    # SITL (SIH): it leaves 1 m 3-4.8 s after the take-off, and disarms 7-8 s after touching down
-    spool_s, disarm_s = 5.0, 8.0
+    # SITL (SIH): it leaves 1 m 3-4.8 s after the take-off, disarms 7-8 s after touching down, and takes
+    # up to 5 s more to come from 1 m to 0.5 m of a target (NAV_ACC_RAD is 2 m)
+    spool_s, disarm_s, settle_s = 5.0, 8.0, 5.0
     own_connection = True  # MAVSDK opens the connection; one PX4 per connection
     # the modes a pilot selects with the sticks, as MAVSDK names them
     pilot_modes = frozenset({"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"})
@@ -227,6 +230,7 @@ class PX4Autopilot(Autopilot):
             rtl_loiter_s=_value(values, "RTL_LAND_DELAY", 0.0),
             spool_s=self.spool_s,
             disarm_s=self.disarm_s,
+            settle_s=self.settle_s,
             read=tuple(n for n in self.limit_parameters if n in values),
         )
 
