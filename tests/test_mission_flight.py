@@ -44,7 +44,10 @@ def test_three_ardupilot_and_one_px4_find_and_hover_on_distinct_targets(tmp_path
     assert len(set(cells)) == 4 and set(cells) <= hidden  # distinct targets, the hidden ones
     assert set(mock_cells) == set(cells) and all(armed)  # the vehicles really are there, in the air
     assert {tuple(t["cell"]) for t in summary["targets_found"]} == hidden
-    assert summary["steps"] > 0 and all(v["steps"] > 0 and v["distance_m"] > 0 for v in ends.values())
+    assert summary["steps"] > 0 and all(v["steps"] > 0 for v in ends.values())
+    # the whole flight, 3-D: the climb to the mission's altitude counts (from 0.5 m up) and the search
+    climb = plan.spec.mission.altitude - 0.5
+    assert all(v["distance_3d_m"] > climb + 10 for v in ends.values()), [v["distance_3d_m"] for v in ends.values()]
     assert summary["messages"]["knowledge_sent"] > 0 and summary["messages"]["mavlink_received"] > 0
     for key in ("time_s", "search_time_s", "messages", "overhead_ms", "policy", "outcome"):
         assert key in summary

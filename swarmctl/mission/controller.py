@@ -27,6 +27,7 @@ from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_polygon
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
+from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
 from swarmctl.mission.flight import cancel
@@ -70,6 +71,7 @@ class Controller:
         self.started = time.monotonic()
         self.search_started: float | None = None
         self.ended: float | None = None
+        self.on_targets: list[tuple[int, int]] = []  # the cells hovered on when the search ended
         self.decide_times: list[float] = []
         self.round_times: list[float] = []
         self.wait_times: list[float] = []  # per round: waiting for vehicles to arrive and for detectors
@@ -227,6 +229,7 @@ class Controller:
         if self.outcome is None:
             self.outcome = "interrupted" if self.stopping else "failed"
         self.ended = time.monotonic()
+        self.on_targets = [a.cell for a in self.agents if a.state is State.HOVER and a.cell is not None]
         for a in self.agents:
             if a.rejoin_task is not None:
                 a.rejoin_task.cancel()
@@ -269,8 +272,9 @@ class Controller:
                 await a.vehicle.land()
             elif action == "rtl":
                 await a.vehicle.rtl()
-            if action in ("land", "rtl") and plan.spec.timing.end_timeout > 0:
-                await a.vehicle.wait_landed(plan.spec.timing.end_timeout)
+            wait = timeouts.end(plan.spec.timing.end_timeout, a.vehicle, action, plan.spec.mission.altitude)
+            if action in ("land", "rtl") and wait > 0:
+                await a.vehicle.wait_landed(wait)
                 a.end_state = "landed at home" if action == "rtl" else "landed"
             else:
                 a.end_state = "hovering on target" if a.state is State.HOVER else "hovering"
@@ -330,7 +334,7 @@ class Controller:
                     end_state=a.end_state,
                     cell=a.cell,
                     steps=a.steps,
-                    distance_m=round(a.distance, 1),
+                    distance_3d_m=round(a.distance, 1),
                     refused_moves=a.refused,
                     step_timeouts=a.timeouts,
                     sensor_reports=a.feed.reports,
@@ -342,10 +346,17 @@ class Controller:
                 )
             )
         links = [
-            dict(connection=str(k), sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
+            dict(
+                connection=str(k),
+                sent=v.stats.sent,
+                received=v.stats.received,
+                bad_data=v.stats.bad_data,
+                console_bytes=v.stats.console_bytes,
+            )
             for k, v in self.links.items()
         ]
-        hovering = [a.cell for a in self.agents if a.state is State.HOVER or a.end_state == "hovering on target"]
+        # who hovered where when the search ended (a vehicle's end action may have brought it home since)
+        hovering = self.on_targets if self.ended else [a.cell for a in self.agents if a.state is State.HOVER]
         out = dict(
             mission=self.plan.spec.mission.name,
             policy=self.plan.policy.spec,
@@ -354,7 +365,7 @@ class Controller:
                 dict(cell=list(c), lat=self.grid.cell_to_latlon(*c)[0], lon=self.grid.cell_to_latlon(*c)[1], step=s)
                 for c, s in sorted(found.items())
             ],
-            vehicles_on_targets=[list(c) for c in hovering if c is not None],
+            vehicles_on_targets=[list(c) for c in hovering],
             time_s=round(now - self.started, 2),
             search_time_s=round(now - self.search_started, 2) if self.search_started else 0.0,
             steps=self.step,

@@ -122,6 +122,28 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             ),
         ),
     ),
+    "preflight": (
+        "events.jsonl",
+        "what a vehicle said (its STATUSTEXT) or still lacked (`waiting for ...`) while it got ready to arm; "
+        "a text is not repeated within 10 s",
+        (_VEHICLE, _SYSID, Field("text", "str", "-", "the text, e.g. `PreArm: Need Position Estimate`")),
+    ),
+    "limits": (
+        "events.jsonl",
+        "a vehicle's speeds, read at preflight, and the timeouts flown with (the mission's where it sets them)",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("read", "strs", "-", "the speed parameters read (empty: the firmware's defaults)"),
+            Field("speed", "number", "m/s", "horizontal speed to a target"),
+            Field("climb", "number", "m/s", "climb rate"),
+            Field("descent", "number", "m/s", "descent rate"),
+            Field("land_speed", "number", "m/s", "the landing's final descent rate"),
+            Field("takeoff_timeout", "number", "s", "arming and climbing to the mission's altitude"),
+            Field("step_timeout", "number", "s", "a step of one cell (the derived ones follow each move's distance)"),
+            Field("end_timeout", "number", "s", "the end action's landing (derived: from the grid's far corner)"),
+        ),
+    ),
     "fence": (
         "events.jsonl",
         "a vehicle's fence upload (before take-off, and before a grounded vehicle rejoins)",

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.sensing import sense
 
@@ -52,18 +53,22 @@ def nearest_free(c: Controller, start: tuple[int, int], exclude: Agent | None = 
     return (flat // h, flat % h)
 
 
-async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float) -> bool:
-    """Send the position target for the cell centre at the mission altitude; wait until reached (False
-    after `timeout`, or at once when the link is lost or the mission is stopped)."""
+async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | None) -> bool:
+    """Send the position target for the cell centre at the mission altitude and wait until it is
+    reached, for `timeout` seconds (None: derived from the vehicle's speeds and the distance to the
+    cell, timeouts.move). False only when that time ran out: a wait cut short because the link was
+    lost or the mission stopped returns True at once (it is not a step timeout)."""
     if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
         raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
     lat, lon = c.grid.cell_to_latlon(*cell)
-    await a.vehicle.goto(lat, lon, c.guard.setpoint_altitude())
+    alt = c.guard.setpoint_altitude()
+    timeout = timeouts.move(timeout, a.vehicle, lat, lon, alt)
+    await a.vehicle.goto(lat, lon, alt)
     task = asyncio.ensure_future(a.vehicle.wait_reached(c.plan.spec.flight.reach_tolerance, timeout))
     try:
         while not task.done():
             if a.vehicle.lost or c.stopping:
-                return False
+                return True
             await asyncio.wait({task}, timeout=0.1)
         return task.exception() is None
     finally:

@@ -63,8 +63,9 @@ def describe(plan: MissionPlan) -> list[str]:
 
 
 class LiveView:
-    """A table per vehicle (state, cell, battery, link, targets) redrawn each step on a terminal, and a
-    progress line; `live=False` keeps only the progress lines, `quiet=True` prints nothing."""
+    """A table per vehicle (state, cell, battery, link, targets, and in preflight what the vehicle says)
+    redrawn each step on a terminal, and a progress line; `live=False` keeps only the progress lines
+    and a line per preflight note, `quiet=True` prints nothing."""
 
     def __init__(self, stream: TextIO | None = None, live: bool = True, quiet: bool = False, every: float = 2.0):
         stream = stream if stream is not None else sys.stderr  # looked up now: sys.stderr may be replaced
@@ -72,6 +73,7 @@ class LiveView:
         self.live = live and not quiet and stream.isatty()
         self._lines = 0
         self._last = 0.0
+        self._notes: dict[str, str | None] = {}  # vehicle -> the preflight note last printed
 
     def __call__(self, c: Controller) -> None:
         if self.quiet:
@@ -84,7 +86,11 @@ class LiveView:
             f"  -> {c.outcome}" if c.outcome else ""
         )
         if not self.live:
-            if now - self._last >= self.every or c.outcome:
+            for a in c.agents:
+                if a.status is not None and self._notes.get(a.name) != a.status:
+                    self._notes[a.name] = a.status
+                    print(f"{a.name}: {a.status}", file=self.stream, flush=True)
+            if c.search_started and now - self._last >= self.every or c.outcome:
                 self._last = now
                 print(progress, file=self.stream, flush=True)
             return
@@ -92,9 +98,10 @@ class LiveView:
         for a in c.agents:
             cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
             battery = a.battery()
+            says = f"  {a.status[:60]}" if a.state == State.PREFLIGHT and a.status else ""
             rows.append(
                 f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
-                f"{a.link_text():<5} {a.targets_known:>7}"
+                f"{a.link_text():<5} {a.targets_known:>7}{says}"
             )
         rows.append(progress)
         out = (f"\x1b[{self._lines}F\x1b[J" if self._lines else "") + "\n".join(rows) + "\n"
