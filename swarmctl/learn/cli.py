@@ -9,8 +9,10 @@ from pathlib import Path
 import click
 
 from swarmctl.cli_options import require, world_config, world_options
+from swarmctl.learn.curriculum import CURRICULA
 from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
 from swarmctl.policy.registry import POLICY_HELP
+from swarmctl.world.beliefs import PAPER_VARIANT, VARIANT_CHANNELS
 
 
 def format_table(results: list[dict]) -> str:
@@ -174,6 +176,39 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
     help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).",
 )
 @click.option("--threads", type=int, default=2, show_default=True, help="Torch CPU threads.")
+@click.option(
+    "--variant",
+    type=click.Choice(sorted(VARIANT_CHANNELS)),
+    default=PAPER_VARIANT,
+    show_default=True,
+    help="Observation and network: the paper's window, or global-local-v1 (the window + the whole map pooled).",
+)
+@click.option(
+    "--explore-reward",
+    type=click.FloatRange(0.0, 10.0),
+    default=0.0,
+    show_default=True,
+    help="Reward per sensing disc of cells a vehicle newly explores (0: the paper's reward).",
+)
+@click.option(
+    "--curriculum",
+    type=click.Choice(sorted(CURRICULA)),
+    default=None,
+    help="Train on many worlds, small maps to large (swarmctl.learn.curriculum); the world options set "
+    "only the observation (window, fov, rho) then.",
+)
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the stopped run whose checkpoint is --out (its networks, optimiser, replay and random "
+    "states); give the run's own options.",
+)
+@click.option(
+    "--keep-resume/--no-keep-resume",
+    default=None,
+    help="At every evaluation save what --resume needs (the replay memory beside --out as NAME.replay.pt). "
+    "Default: on with --curriculum or --resume.",
+)
 @click.option("--progress/--no-progress", default=True)
 def train_command(
     episodes,
@@ -197,6 +232,11 @@ def train_command(
     eval_episodes,
     eval_steps,
     threads,
+    variant,
+    explore_reward,
+    curriculum,
+    resume,
+    keep_resume,
     progress,
     **kwargs,
 ):
@@ -205,8 +245,9 @@ def train_command(
 
     from swarmctl.learn.ddql import TrainConfig, train
 
-    world = world_config(kwargs)
+    world = replace(world_config(kwargs), variant=variant, explore_reward=explore_reward)
     require(episodes >= 1, f"--episodes {episodes} must be >= 1")
+    require(not resume or out.is_file(), f"--resume: {out} does not exist; give the --out of the stopped run")
     require(parallel >= 1, f"--parallel {parallel} must be >= 1")
     require(batch_size >= 1, f"--batch-size {batch_size} must be >= 1")
     require(updates_per_step > 0, f"--updates-per-step {updates_per_step} must be > 0")
@@ -247,11 +288,40 @@ def train_command(
         eval_episodes=eval_episodes,
         eval_steps=eval_steps,
         threads=threads,
+        curriculum=curriculum,
+        keep_resume=bool(curriculum or resume) if keep_resume is None else keep_resume,
     )
-    meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
+    stop = _stop_on_signals()
+    meta = train(world, cfg, seed, out, init=init, device=device, progress=progress, resume=resume, stop=stop)
+    if meta.get("stopped"):
+        click.echo(
+            f"stopped after {meta['episodes']} episodes; saved {out} and its replay: continue with the same "
+            "command and --resume",
+            err=True,
+        )
+        raise click.exceptions.Exit(130)
     final = meta["final_eval"] or {}
     click.echo(
         f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
         f"held-out success {final.get('success_rate', float('nan')):.3f}, "
         f"mean steps {final.get('mean_steps', float('nan')):.2f}"
     )
+
+
+def _stop_on_signals():
+    """SIGINT / SIGTERM ask the training to stop after its round and save what --resume needs."""
+    import signal
+
+    asked = []
+
+    def handler(signum, _frame):
+        if asked:  # a second signal: stop now
+            raise KeyboardInterrupt
+        asked.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, handler)
+        except ValueError:  # not the main thread (tests calling main() from a worker)
+            pass
+    return lambda: bool(asked)
