@@ -10,8 +10,10 @@ import click
 
 from swarmctl.bounds import SEED, real, require_memory, whole, writable_file
 from swarmctl.cli_options import require, require_world_memory, world_config, world_options
+from swarmctl.learn.curriculum import CURRICULA, curriculum_side
 from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
 from swarmctl.policy.registry import POLICY_HELP
+from swarmctl.world.beliefs import PAPER_VARIANT, VARIANT_CHANNELS
 
 
 def format_table(results: list[dict]) -> str:
@@ -190,6 +192,39 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
     help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).",
 )
 @click.option("--threads", type=whole(1, 256), default=2, show_default=True, help="Torch CPU threads.")
+@click.option(
+    "--variant",
+    type=click.Choice(sorted(VARIANT_CHANNELS)),
+    default=PAPER_VARIANT,
+    show_default=True,
+    help="Observation and network: the paper's window, or global-local-v1 (the window + the whole map pooled).",
+)
+@click.option(
+    "--explore-reward",
+    type=real(0.0, 10.0),
+    default=0.0,
+    show_default=True,
+    help="Reward per sensing disc of cells a vehicle newly explores (0: the paper's reward).",
+)
+@click.option(
+    "--curriculum",
+    type=click.Choice(sorted(CURRICULA)),
+    default=None,
+    help="Train on many worlds, small maps to large (swarmctl.learn.curriculum); the world options set "
+    "only the observation (window, fov, rho) then.",
+)
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the stopped run whose checkpoint is --out (its networks, optimiser, replay and random "
+    "states); give the run's own options.",
+)
+@click.option(
+    "--keep-resume/--no-keep-resume",
+    default=None,
+    help="At every evaluation save what --resume needs (the replay memory beside --out as NAME.replay.pt). "
+    "Default: on with --curriculum or --resume.",
+)
 @click.option("--progress/--no-progress", default=True)
 def train_command(
     episodes,
@@ -213,6 +248,11 @@ def train_command(
     eval_episodes,
     eval_steps,
     threads,
+    variant,
+    explore_reward,
+    curriculum,
+    resume,
+    keep_resume,
     progress,
     **kwargs,
 ):
@@ -221,17 +261,19 @@ def train_command(
 
     from swarmctl.learn.ddql import TrainConfig, train
 
-    world = world_config(kwargs)
+    world = replace(world_config(kwargs), variant=variant, explore_reward=explore_reward)
+    require(not resume or out.is_file(), f"--resume: {out} does not exist; give the --out of the stopped run")
     require(replay_capacity >= batch_size, f"--replay {replay_capacity} must hold at least one batch ({batch_size})")
     require(world.window >= 8, f"--window {world.window}: the network needs F >= 8")
-    obs_floats = 3 * world.window**2
+    obs_floats = VARIANT_CHANNELS[variant] * world.window**2
     require_memory(
         replay_capacity * (2 * 2 * obs_floats + 12),  # o and o' as float16, the action and the reward
         f"--replay {replay_capacity} samples of {obs_floats:,}-value observations",
         "give a smaller --replay (the paper's is 100000)",
     )
     busiest = max(parallel, min(prefill, 100), eval_episodes)  # the largest batch of episodes stepped at once
-    require_world_memory(world, busiest, f"{busiest} parallel or held-out episodes at M={world.map_size}")
+    biggest = replace(world, map_size=max(world.map_size, curriculum_side(curriculum))) if curriculum else world
+    require_world_memory(biggest, busiest, f"{busiest} parallel or held-out episodes at M={biggest.map_size}")
     if init is not None:
         require(init.is_file(), f"--init {init}: no such checkpoint file")
     writable_file(out, "--out")
@@ -259,11 +301,40 @@ def train_command(
         eval_episodes=eval_episodes,
         eval_steps=eval_steps,
         threads=threads,
+        curriculum=curriculum,
+        keep_resume=bool(curriculum or resume) if keep_resume is None else keep_resume,
     )
-    meta = train(world, cfg, seed, out, init=init, device=device, progress=progress)
+    stop = _stop_on_signals()
+    meta = train(world, cfg, seed, out, init=init, device=device, progress=progress, resume=resume, stop=stop)
+    if meta.get("stopped"):
+        click.echo(
+            f"stopped after {meta['episodes']} episodes; saved {out} and its replay: continue with the same "
+            "command and --resume",
+            err=True,
+        )
+        raise click.exceptions.Exit(130)
     final = meta["final_eval"] or {}
     click.echo(
         f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
         f"held-out success {final.get('success_rate', float('nan')):.3f}, "
         f"mean steps {final.get('mean_steps', float('nan')):.2f}"
     )
+
+
+def _stop_on_signals():
+    """SIGINT / SIGTERM ask the training to stop after its round and save what --resume needs."""
+    import signal
+
+    asked = []
+
+    def handler(signum, _frame):
+        if asked:  # a second signal: stop now
+            raise KeyboardInterrupt
+        asked.append(signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            signal.signal(sig, handler)
+        except ValueError:  # not the main thread (tests calling main() from a worker)
+            pass
+    return lambda: bool(asked)

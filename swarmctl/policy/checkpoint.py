@@ -26,13 +26,13 @@ import torch
 
 from swarmctl.bounds import CHECKPOINT_MAX_BYTES, size_text
 from swarmctl.errors import InputError, ScenarioError
-from swarmctl.policy.qnet import ARCHITECTURE, QNetwork
+from swarmctl.policy.qnet import NETWORKS
 from swarmctl.world.beliefs import PAPER_VARIANT
 from swarmctl.world.config import WorldConfig
 
 FORMAT = "swarmctl-ddql"
 VERSION = 2
-VARIANTS = (PAPER_VARIANT,)
+VARIANTS = tuple(cls.variant for cls in NETWORKS.values())
 
 
 def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
@@ -46,7 +46,7 @@ def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
 
 
 def save_checkpoint(
-    path: str | Path, net: QNetwork, world: dict, train: dict, metadata: dict, resume: dict | None = None
+    path: str | Path, net: torch.nn.Module, world: dict, train: dict, metadata: dict, resume: dict | None = None
 ) -> str:
     """Write the network and everything needed to reproduce and judge it; returns its weights hash."""
     path = Path(path)
@@ -56,8 +56,8 @@ def save_checkpoint(
     payload = {
         "format": FORMAT,
         "version": VERSION,
-        "architecture": ARCHITECTURE,
-        "variant": PAPER_VARIANT,
+        "architecture": net.architecture,
+        "variant": net.variant,
         "window": net.window,
         "n_actions": 5,
         "state_dict": state,
@@ -78,7 +78,7 @@ def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
     return {"file": Path(path).name, "weights_sha256": info["weights_sha256"]}
 
 
-def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwork, dict]:
+def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.nn.Module, dict]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
     Raises InputError naming the file when it is missing, over CHECKPOINT_MAX_BYTES, not a checkpoint,
@@ -116,16 +116,17 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
     version = payload.get("version")
     if version not in (1, VERSION):
         raise InputError(f"{path}: checkpoint version {version!r} is not supported (expected 1 or {VERSION})")
-    if payload.get("architecture") != ARCHITECTURE:
+    network = NETWORKS.get(payload.get("architecture"))
+    if network is None:
         raise InputError(
-            f"{path}: architecture {payload.get('architecture')!r} is not {ARCHITECTURE!r}; "
+            f"{path}: architecture {payload.get('architecture')!r} is not one of {', '.join(NETWORKS)}; "
             "retrain with this version of swarmctl"
         )
     payload.setdefault("variant", PAPER_VARIANT)
-    if payload["variant"] not in VARIANTS:
+    if payload["variant"] != network.variant:
         raise InputError(
-            f"{path}: observation variant {payload['variant']!r} is unknown to this version of "
-            f"swarmctl (known: {', '.join(VARIANTS)})"
+            f"{path}: observation variant {payload['variant']!r} does not go with the {network.architecture} "
+            f"network (it takes {network.variant!r}); the file was altered or mislabelled"
         )
     f = payload.get("window")
     if not isinstance(f, int) or isinstance(f, bool) or not 8 <= f <= 256:
@@ -150,11 +151,11 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
         if t.is_floating_point() and not bool(torch.isfinite(t).all()):
             raise InputError(f"{path}: weight {key} holds NaN or infinite values; this model cannot fly")
     try:
-        net = QNetwork(window=f)
+        net = network(window=f)
         net.load_state_dict(state)
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
         raise InputError(
-            f"{path}: weights do not fit the {ARCHITECTURE} network ({str(exc).splitlines()[0]})"
+            f"{path}: weights do not fit the {network.architecture} network ({str(exc).splitlines()[0]})"
         ) from None
     net.eval()
     info = {k: v for k, v in payload.items() if k != "state_dict"}

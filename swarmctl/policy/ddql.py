@@ -73,7 +73,8 @@ class DDQLPolicy:
         self.net, self.info = load_checkpoint(path)
         self.forward = make_forward(self.net, forward, key=self.info.get("weights_sha256"))
         # as it was trained (the window of the network itself)
-        self.settings = replace(ObservationSettings.from_world(self.info["world"]), window=self.net.window)
+        world = ObservationSettings.from_world(self.info["world"])
+        self.settings = replace(world, window=self.net.window, variant=self.net.variant)
         self.seed = 0
         self.frontier = FrontierPolicy()
 
@@ -97,7 +98,10 @@ class DDQLPolicy:
         return self.forward(obs.reshape(b * u, *obs.shape[2:])).reshape(b, u, -1)
 
     def decide(self, beliefs: Beliefs) -> Decision:
-        obs = observe(beliefs, self.remove_taken)
+        seen = beliefs  # observed in the network's own variant, whatever the world trains others on
+        if beliefs.settings.variant != self.net.variant:
+            seen = beliefs.with_settings(variant=self.net.variant)
+        obs = observe(seen, self.remove_taken)
         q = self.q_values(obs)
         u = Draws(self.seed, beliefs).deciders(SOFTMAX)
         moves = choose(q, allowed_moves(beliefs, self.hover, self.mask), self.tau, u)

@@ -6,6 +6,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from swarmctl.errors import ScenarioError
+from swarmctl.world.beliefs import VARIANT_CHANNELS
 
 SCENARIOS = ("sparse", "cluster")
 CHANNELS = ("ideal", "none", "model", "fixed")
@@ -44,6 +45,8 @@ class WorldConfig:
     cell_size: float = 10.0  # metres per cell, for the channel model
     guard: bool = False  # refuse moves into a cell another vehicle holds or enters (controller's guard)
     remove_taken: bool = False  # observations: targets others sit on leave the value channel (world.taken)
+    variant: str = "venturini2021"  # observation variant: the paper's window, or "global-local-v1" (+ the whole map)
+    explore_reward: float = 0.0  # reward per sensing disc of cells a vehicle newly explores (0: the paper's reward)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -54,6 +57,10 @@ class WorldConfig:
         for name, value in asdict(self).items():
             if isinstance(value, float) and not math.isfinite(value):
                 raise ScenarioError(f"{name} = {value}: must be a finite number")
+        if self.variant not in VARIANT_CHANNELS:
+            raise ScenarioError(f"variant {self.variant!r} is unknown: use one of {', '.join(VARIANT_CHANNELS)}")
+        if not 0.0 <= self.explore_reward <= 10.0:
+            raise ScenarioError(f"explore reward {self.explore_reward} must be a number in [0, 10]")
         if self.scenario not in SCENARIOS:
             raise ScenarioError(f"--scenario {self.scenario!r} is unknown: use one of {', '.join(SCENARIOS)}")
         if not 1 <= m <= MAX_MAP:
