@@ -257,8 +257,9 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
 
-    plan = make_plan(load_spec(mission_file), seed=seed, mission_file=mission_file)
-    folder = _out_folder(out, plan.spec.mission.name)
+    spec = load_spec(mission_file)
+    folder = _out_folder(out, spec.mission.name)  # the command line before the mission's contents
+    plan = make_plan(spec, seed=seed, mission_file=mission_file)
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly this mission?", default=False):
@@ -305,8 +306,8 @@ def agent_command(
     from swarmctl.mission.spec import load_spec
 
     spec = load_spec(mission_file)
+    folder = _out_folder(out, f"{spec.mission.name}-{'-'.join(vehicles)}")  # the command line first
     plan = make_plan(spec, only=list(vehicles), detector=detector, seed=seed, mission_file=mission_file)
-    folder = _out_folder(out, f"{plan.spec.mission.name}-{'-'.join(vehicles)}")
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly?", default=False):

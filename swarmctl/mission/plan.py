@@ -77,6 +77,7 @@ def make_plan(
     channel); `detector` ("mavlink" or udp:HOST:PORT) is the detector of every vehicle kept. Every
     refusal is an InputError naming the mission file."""
     where = str(mission_file) if mission_file is not None else "mission"
+    socket = parse_detector(detector) if detector else None  # the command line before the file
     m = spec.mission
     grid = grid if grid is not None else load_grid(spec)
     altitude, cell = _check_grid(m, grid, where)
@@ -103,8 +104,7 @@ def make_plan(
             "from one computer with swarmctl fly"
         )
     detectors = {i: spec.vehicles[i].detector for i in keep if spec.vehicles[i].detector is not None}
-    if detector:
-        socket = parse_detector(detector)
+    if socket is not None:
         detectors.update({i: socket for i in keep})
     key = None
     if m.signing_key is not None:
