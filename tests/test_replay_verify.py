@@ -8,6 +8,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -15,6 +16,7 @@ from swarmctl.cli import main
 from swarmctl.geo.grid import GeoGrid
 from swarmctl.mission.events import check_event
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
+from swarmctl.replay import verify as verify_module
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 from tests.test_mission_cli import small_mission
 
@@ -252,3 +254,19 @@ def test_a_damaged_inputs_line_leaves_its_rounds_unchecked_until_the_next_whole_
     assert any("could not be read" in why for why in report["unchecked"])
     assert any("no inputs line" in why for why in report["unchecked"])
     assert any("damaged" in n for n in report["notes"])
+
+
+def _decided(q, move, allowed=(True,) * 5, draw=0.5):
+    return verify_module._Network(move, np.array(q, dtype=np.float64), "d", None, np.array(allowed), draw)
+
+
+@pytest.mark.parametrize("tau", [None, 0.1])
+def test_moves_within_the_tie_of_the_best_pass_either_way(tau):
+    q = [0.0, 1.0, 1.0 - 5e-5, 0.2, 0.3]
+    record = {"move": "east", "q": q, "obs": "d"}
+    assert verify_module.judge_network(record, _decided(q, 1), tau, 0.01) == "tie"
+    why, _p = verify_module.judge_network({**record, "move": "west"}, _decided(q, 1), tau, 0.01)
+    assert "west" not in why and ("below the best" in why if tau is None else "draw" in why)
+    # a move the rules forbid is no tie, however close its Q-value
+    why, _p = verify_module.judge_network(record, _decided(q, 1, (True, True, False, True, True)), tau, 0.01)
+    assert "do not allow" in why

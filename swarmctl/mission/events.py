@@ -1,5 +1,5 @@
-"""The recording's event schema: every kind of line in events.jsonl and knowledge.jsonl, every field,
-its type and unit, in one table.
+"""The recording's event schema: every kind of line in events.jsonl, knowledge.jsonl and inputs.jsonl,
+every field, its type and unit, in one table.
 
 The recorder writes these lines, `swarmctl replay` reads them back through `check_event`, and
 docs/recording.md shows the tables `schema_markdown()` renders from this module (a test keeps the two

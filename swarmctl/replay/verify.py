@@ -11,10 +11,11 @@ round's step record:
 
 - planners (frontier, la:N, lawnmower, random) and ddql's straggler hand-off to frontier: the move
   must be the recorded one (their tie-breaks are draws keyed by seed, step and vehicle);
-- ddql-greedy: the recorded move, or a tie: an allowed move whose Q-value is within TIE of the best;
+- ddql-greedy: the recorded move, or a tie: the recorded move's Q-value is within TIE of the best;
 - ddql (softmax): the move drawn again with the recorded key (seed, step, vehicle) must be the
-  recorded one, or the draw must fall within the change of the cumulative probabilities that a change
-  of the Q-values by TIE can make (exp(2 TIE / tau) - 1: a tie). Where the draw cannot be reproduced,
+  recorded one, or a tie: both moves' Q-values within TIE of the best, or the draw within the change of
+  the cumulative probabilities that a change of the Q-values by TIE can make (exp(2 TIE / tau) - 1,
+  at tau 0.1 about 0.002). Where the draw cannot be reproduced,
   because the recomputed Q-values differ from the recorded ones by more than TIE (or none were
   recorded), the recorded move's probability under the model decides: a mismatch below
   `--min-probability`;
@@ -199,9 +200,11 @@ def judge_network(record: dict, d: _Network, tau: float | None, min_probability:
         return f"the {d.by} planner's move differs", None
     if not d.allowed[m_rec]:
         return "the decision rules (hover, mask) do not allow the recorded move", None
+    best = float(d.q[d.allowed].max())
+    if best - d.q[m_rec] < TIE and best - d.q[d.move] < TIE:  # both among the best moves
+        return "tie"
     if tau is None:
-        gap = float(d.q[d.move] - d.q[m_rec])
-        return "tie" if gap < TIE else (f"its Q-value is {gap:.4g} below the best", None)
+        return f"its Q-value is {best - d.q[m_rec]:.4g} below the best", None
     p = _probabilities(d.q, d.allowed, tau)
     q_rec = record.get("q")
     if q_rec is not None and len(q_rec) == len(d.q):
