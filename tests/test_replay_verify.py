@@ -270,3 +270,11 @@ def test_moves_within_the_tie_of_the_best_pass_either_way(tau):
     # a move the rules forbid is no tie, however close its Q-value
     why, _p = verify_module.judge_network(record, _decided(q, 1, (True, True, False, True, True)), tau, 0.01)
     assert "do not allow" in why
+
+
+def test_a_real_recording_from_before_the_inputs_says_so(tmp_path, capsys):
+    """The three-copter SITL recording in tests/data was flown before the decision inputs were kept."""
+    rec = ROOT / "tests" / "data" / "logs" / "sitl3-mission"
+    assert main(["replay", str(rec), "--verify", "--out", str(tmp_path), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "cannot verify" in err and "recorded before" in err

@@ -31,6 +31,11 @@ from swarmctl.world.beliefs import Beliefs, ObservationSettings
 FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random"
 
 
+def obs_digest(obs) -> str:
+    """The digest a step record keeps of a ddql observation (3, F, F): sha1 of its bytes, 16 hex digits."""
+    return hashlib.sha1(obs.tobytes()).hexdigest()[:16]
+
+
 @dataclass
 class Choice:
     move: int
@@ -101,7 +106,7 @@ class FieldPolicy:
         return [
             Choice(
                 int(m),
-                hashlib.sha1(o.tobytes()).hexdigest()[:16],
+                obs_digest(o),
                 [round(float(v), 4) for v in qv],
                 "frontier" if by else None,
             )

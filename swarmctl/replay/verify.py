@@ -31,7 +31,6 @@ again with it.
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 from collections import Counter
@@ -43,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from swarmctl.errors import InputError
-from swarmctl.mission.decide import FieldPolicy
+from swarmctl.mission.decide import FieldPolicy, obs_digest
 from swarmctl.mission.inputs import InputsDecoder, InputsError
 from swarmctl.mission.rounds import move_index
 from swarmctl.policy.base import allowed_moves
@@ -231,7 +230,7 @@ def _network(policy: DDQLPolicy, beliefs: Beliefs) -> list[_Network]:
         _Network(
             int(d.moves[0, u]),
             d.q[0, u].astype(np.float64),
-            hashlib.sha1(d.obs[0, u].tobytes()).hexdigest()[:16],
+            obs_digest(d.obs[0, u]),
             "frontier" if d.by_frontier[0, u] else None,
             allowed[u],
             float(draws[u]),
