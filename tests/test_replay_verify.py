@@ -144,7 +144,8 @@ def test_a_planted_mismatch_is_listed_and_exits_1(which, request, tmp_path, caps
     assert f"mismatch: step {step} {vehicle}: recorded move {move}, recomputed {wrong[0]['recomputed']}" in out
     if which == "ddql_demo":  # the softmax draw was reproduced: the planted move's probability is listed
         assert wrong[0]["probability"] is not None and wrong[0]["probability"] < 0.5
-        assert "p(recorded) = " in out
+        assert 0 < wrong[0]["recomputed_probability"] <= 1
+        assert "p(recorded) = " in out and "p(recomputed) = " in out
     assert report["checked"] == _decisions(rec)
 
 

@@ -15,10 +15,10 @@ round's step record:
 - ddql (softmax): the move drawn again with the recorded key (seed, step, vehicle) must be the
   recorded one, or a tie: both moves' Q-values within TIE of the best, or the draw within the change of
   the cumulative probabilities that a change of the Q-values by TIE can make (exp(2 TIE / tau) - 1,
-  at tau 0.1 about 0.002). Where the draw cannot be reproduced,
-  because the recomputed Q-values differ from the recorded ones by more than TIE (or none were
-  recorded), the recorded move's probability under the model decides: a mismatch below
-  `--min-probability`;
+  at tau 0.1 about 0.002). Where the draw cannot be reproduced, because the recomputed Q-values
+  differ from the recorded ones by more than TIE (or none were recorded), the recorded move's
+  probability under the model decides: a mismatch below `--min-probability`. A softmax mismatch
+  lists both moves' probabilities under the recomputed Q-values;
 - ddql: the observation's digest must be the recorded one (else the beliefs were not rebuilt as the
   vehicle had them) and the move must come from the same source (network or frontier);
 - the guard is re-applied to the recorded moves (the proposals of the vehicles that searched, the
@@ -69,10 +69,15 @@ class Mismatch:
     why: str
     probability: float | None = None  # softmax: the recorded move's probability under the model
     kind: str = "decision"  # or "guard"
+    recomputed_probability: float | None = None  # softmax: the recomputed move's
 
     def text(self) -> str:
         what = "guarded move" if self.kind == "guard" else "move"
-        p = f" (p(recorded) = {self.probability:.3g})" if self.probability is not None else ""
+        p = ""
+        if self.probability is not None:
+            p = f" (p(recorded) = {self.probability:.3g}"
+            again = self.recomputed_probability
+            p += f", p(recomputed) = {again:.3g})" if again is not None else ")"
         return (
             f"step {self.step} {self.vehicle}: recorded {what} {self.recorded}, recomputed {self.recomputed}{p}: "
             f"{self.why}"
@@ -388,7 +393,12 @@ def _round(
             report.probable += 1
         else:
             why, p = verdict
-            report.mismatches.append(Mismatch(step, name, r["move"], MOVE_NAMES[move], why, p))
+            wrong = Mismatch(step, name, r["move"], MOVE_NAMES[move], why, p)
+            if isinstance(d, _Network) and inner.tau is not None and d.by is None:  # a softmax move
+                probs = _probabilities(d.q, d.allowed, inner.tau)
+                wrong.probability = float(probs[MOVE_NAMES.index(r["move"])])
+                wrong.recomputed_probability = float(probs[move])
+            report.mismatches.append(wrong)
     if blocked is not None:
         report.guarded += len(record["vehicles"])
         report.mismatches += reguard(record, line["held"], index, blocked)
