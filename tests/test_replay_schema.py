@@ -31,6 +31,7 @@ KINDS = {
     "xy": st.lists(st.integers(-300, 300), min_size=2, max_size=2),
     "latlon": _latlon,
     "latlons": st.lists(_latlon, max_size=4),
+    "ints": st.lists(st.integers(-(10**6), 10**6), max_size=5),
     "numbers": st.lists(_number, max_size=5),
     "strs": st.lists(st.text(max_size=6), max_size=4),
 }

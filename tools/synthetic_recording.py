@@ -10,8 +10,15 @@ HEARTBEAT and SYS_STATUS at 1 Hz, GLOBAL_POSITION_INT at 20 Hz along its path, t
 position targets, and the knowledge TUNNEL frames (swarmctl.knowledge.codec: a DELTA per step, the
 digest every 5 steps, DETECTIONs) once as sent and once per other vehicle as received.
 
+With `--policy SPEC` a swarmctl policy (frontier, ddql:PATH, ...) decides instead, on the Beliefs
+built from the vehicles' Knowledge as the controller builds them, its moves pass the safety guard, and
+the recording keeps the decision inputs (inputs.jsonl) and the policy's seed, so `swarmctl replay
+--verify` checks it:
+
     python tools/synthetic_recording.py --uavs 50 --steps 200 --out runs/synthetic-50x200
     swarmctl replay runs/synthetic-50x200 --quiet
+    python tools/synthetic_recording.py --policy frontier --out runs/synthetic-frontier
+    swarmctl replay runs/synthetic-frontier --verify --quiet
 """
 
 from __future__ import annotations
@@ -30,9 +37,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.knowledge.codec import KnowledgeCodec  # noqa: E402
 from swarmctl.knowledge.model import Detection, Knowledge, disc_cells  # noqa: E402
+from swarmctl.mission.decide import Choice, FieldPolicy  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
 from swarmctl.replay.truth import write_truth  # noqa: E402
 from swarmctl.sim.swarm import hide_targets, start_cells  # noqa: E402
+from swarmctl.world.guard import REASONS, guard_moves  # noqa: E402
 from swarmctl.world.moves import MOVE_NAMES, MOVES  # noqa: E402
 from swarmctl.world.scenario import value_map  # noqa: E402
 
@@ -97,13 +106,39 @@ class _Swarm:
                 moves.append(m)
         return int(self.rng.choice(moves)) if moves else 0
 
+    def decide(self, policy: FieldPolicy, step: int, rec: Recorder, names: list[str]) -> list[tuple]:
+        """One round decided by `policy` as the controller decides it: vehicles on a known target no one
+        hovers over start hovering, the others decide in one batch, the guard checks every move; the
+        round's inputs line is recorded. Returns (vehicle, Choice, guarded move, refusal) per decider."""
+        n = len(self.cells)
+        for i in range(n):
+            if i not in self.hovering and self.cells[i] in self.knowledge[i].targets:
+                if self.cells[i] not in {self.cells[j] for j in self.hovering}:
+                    self.hovering.add(i)
+        deciders = [i for i in range(n) if i not in self.hovering]
+        if not deciders:
+            return []
+        beliefs = policy.beliefs([self.knowledge[i] for i in deciders], step - 1, n)
+        chosen = dict(zip(deciders, policy.decide(beliefs)))
+        pos = np.array(self.cells, dtype=np.int64)
+        want = pos + np.array([MOVES[chosen[i].move if i in chosen else 0] for i in range(n)], dtype=np.int64)
+        dest, refused = guard_moves(pos[None], want[None], self.grid.blocked)
+        rec.inputs(step, [names[i] for i in deciders], beliefs, [(j, self.cells[j]) for j in sorted(self.hovering)])
+        out = []
+        for i in deciders:
+            guarded = next(m for m, d in enumerate(MOVES) if tuple(pos[i] + d) == tuple(dest[0, i]))
+            out.append((i, chosen[i], guarded, REASONS.get(int(refused[0, i]))))
+        return out
+
 
 def _mav(sysid: int, comp: int = 1) -> mavlink2.MAVLink:
     return mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=comp)
 
 
-def write(out: Path, uavs: int, steps: int, seed: int) -> Path:
+def write(out: Path, uavs: int, steps: int, seed: int, policy_spec: str | None = None) -> Path:
     grid = GeoGrid.load(GRID)
+    policy = FieldPolicy(policy_spec, seed=seed) if policy_spec else None
+    recorded = policy.recorded() if policy else {}
     swarm = _Swarm(grid, uavs, seed)
     out.mkdir(parents=True, exist_ok=True)
     rec = Recorder(out)
@@ -117,12 +152,13 @@ def write(out: Path, uavs: int, steps: int, seed: int) -> Path:
         "mission",
         t=t,
         name="synthetic",
-        policy="greedy-explorer",
+        policy=policy_spec or "greedy-explorer",
         altitude=40.0,
         end_action="rtl",
         grid=[grid.width, grid.height],
         vehicles=names,
         fence=None,
+        **recorded,
     )
     for i, n in enumerate(names):
         rec.event("state", t=t, vehicle=n, sysid=i + 1, state="search", cell=list(swarm.cells[i]))
@@ -133,28 +169,26 @@ def write(out: Path, uavs: int, steps: int, seed: int) -> Path:
     swarm.share()
     found_at: dict = {}
     for step in range(1, steps + 1):
-        taken: set = set()
-        moves = []
-        for i in range(uavs):
-            m = swarm.choose(i, taken | {swarm.cells[j] for j in range(uavs) if j != i})
-            c = (swarm.cells[i][0] + int(MOVES[m][0]), swarm.cells[i][1] + int(MOVES[m][1]))
-            taken.add(c)
-            moves.append((m, c))
+        if policy is None:
+            decided = _greedy_round(swarm, uavs)
+        else:
+            decided = swarm.decide(policy, step, rec, names)
+        moves = [(0, swarm.cells[i]) for i in range(uavs)]
         records = []
-        for i, (m, _c) in enumerate(moves):
-            records.append(
-                dict(
-                    vehicle=names[i],
-                    sysid=i + 1,
-                    cell=list(swarm.cells[i]),
-                    obs=None,
-                    q=None,
-                    move=MOVE_NAMES[m],
-                    guarded=MOVE_NAMES[m],
-                    refused=None,
-                    received=uavs - 1,
-                )
+        for i, ch, g, why in decided:
+            moves[i] = (g, (swarm.cells[i][0] + int(MOVES[g][0]), swarm.cells[i][1] + int(MOVES[g][1])))
+            record = dict(
+                vehicle=names[i],
+                sysid=i + 1,
+                cell=list(swarm.cells[i]),
+                obs=ch.obs_digest,
+                q=ch.q,
+                move=MOVE_NAMES[ch.move],
+                guarded=MOVE_NAMES[g],
+                refused=why,
+                received=uavs - 1,
             )
+            records.append(record | ({"by": ch.by} if ch.by else {}))
         # one simulated second: 20 Hz positions along each move, 1 Hz heartbeat and battery
         lat0, lon0 = grid.cells_to_latlon(*np.array([swarm.cells[i] for i in range(uavs)]).T)
         lat1, lon1 = grid.cells_to_latlon(*np.array([c for _m, c in moves]).T)
@@ -208,13 +242,14 @@ def write(out: Path, uavs: int, steps: int, seed: int) -> Path:
             dict(vehicle=names[i], sysid=i + 1, state="hover", cell=list(swarm.cells[i]), received=0)
             for i in sorted(swarm.hovering)
         ]
-        records = [r for r in records if int(r["sysid"]) - 1 not in swarm.hovering or r["move"] != "stay"]
+        if policy is None:
+            records = [r for r in records if int(r["sysid"]) - 1 not in swarm.hovering or r["move"] != "stay"]
         rec.event("step", t=t, step=step, vehicles=records, others=others, decide_ms=1.0)
         rec.knowledge(step, [(n, kn) for n, kn in zip(names, swarm.knowledge)])
     rec.event("end", t=t, outcome="time limit", step=steps)
     summary = dict(
         mission="synthetic",
-        policy="greedy-explorer",
+        policy=policy_spec or "greedy-explorer",
         outcome="time limit",
         steps=steps,
         search_time_s=float(steps),
@@ -230,14 +265,27 @@ def write(out: Path, uavs: int, steps: int, seed: int) -> Path:
     return out
 
 
+def _greedy_round(swarm: _Swarm, uavs: int) -> list[tuple]:
+    """The greedy explorer's round: (vehicle, Choice, move, None) for every vehicle, in index order, each
+    avoiding the cells the others hold and those the ones before it move to."""
+    taken: set = set()
+    out = []
+    for i in range(uavs):
+        m = swarm.choose(i, taken | {swarm.cells[j] for j in range(uavs) if j != i})
+        taken.add((swarm.cells[i][0] + int(MOVES[m][0]), swarm.cells[i][1] + int(MOVES[m][1])))
+        out.append((i, Choice(m), m, None))
+    return out
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--uavs", type=int, default=50)
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("runs/synthetic-50x200"))
+    p.add_argument("--policy", default=None, help="a swarmctl policy decides (module docstring)")
     args = p.parse_args()
-    out = write(args.out, args.uavs, args.steps, args.seed)
+    out = write(args.out, args.uavs, args.steps, args.seed, args.policy)
     sizes = {f.name: f.stat().st_size for f in sorted(out.iterdir()) if f.is_file()}
     print(json.dumps({"folder": str(out), "bytes": sizes}, indent=1))
 

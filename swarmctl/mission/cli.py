@@ -163,7 +163,7 @@ def demo_command(
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
     policy, hovers over them, then carries out the end action. The vehicles' agents share knowledge in
     this process (--channel: with the simulator's losses). Writes the recording (mission.tlog,
-    events.jsonl, knowledge.jsonl, summary.json, grid.npz) and mission.png to --out.
+    events.jsonl, knowledge.jsonl, inputs.jsonl, summary.json, grid.npz) and mission.png to --out.
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy

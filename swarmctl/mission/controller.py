@@ -102,6 +102,7 @@ class Controller:
             grid=[self.grid.width, self.grid.height],
             vehicles=[v.name for v in self.plan.spec.vehicles],
             fence=self.fence,
+            **self.plan.policy.recorded(),
         )
         try:
             await self._open()

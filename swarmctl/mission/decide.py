@@ -26,9 +26,14 @@ from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge, beliefs_from_know
 from swarmctl.policy.ddql import DDQLPolicy
 from swarmctl.policy.registry import make_policy
 from swarmctl.policy.threads import set_inference_threads
-from swarmctl.world.beliefs import ObservationSettings
+from swarmctl.world.beliefs import Beliefs, ObservationSettings
 
 FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random"
+
+
+def obs_digest(obs) -> str:
+    """The digest a step record keeps of a ddql observation (3, F, F): sha1 of its bytes, 16 hex digits."""
+    return hashlib.sha1(obs.tobytes()).hexdigest()[:16]
 
 
 @dataclass
@@ -67,24 +72,49 @@ class FieldPolicy:
     def window(self) -> int:
         return self.settings.window
 
-    def choose(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> list[Choice]:
-        """Moves for the searching agents whose Knowledge is given, at mission step `step`, in a swarm
-        of `vehicles` (default: as many as the knowledges name)."""
-        if not knowledges:
-            return []
-        beliefs = beliefs_from_knowledge(knowledges, vehicles, self.settings, step)
+    @property
+    def weights_sha256(self) -> str | None:
+        """The hash of the network's weights (swarmctl.policy.checkpoint); None for planners."""
+        return self.policy.info["weights_sha256"] if isinstance(self.policy, DDQLPolicy) else None
+
+    @property
+    def forward(self) -> str | None:
+        """What runs the network (torch or onnx, swarmctl.policy.forward); None for planners."""
+        return self.policy.forward.name if isinstance(self.policy, DDQLPolicy) else None
+
+    def recorded(self) -> dict:
+        """What the recording's mission line keeps so that `swarmctl replay --verify` rebuilds this policy."""
+        return dict(seed=self.seed, weights_sha256=self.weights_sha256, forward=self.forward)
+
+    def beliefs(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> Beliefs:
+        """The Beliefs of the searching agents whose Knowledge is given, at mission step `step`, in a swarm
+        of `vehicles` (default: as many as the knowledges name), observed with this policy's settings."""
+        return beliefs_from_knowledge(knowledges, vehicles, self.settings, step)
+
+    def start(self, beliefs: Beliefs) -> None:
+        """Start the policy on the mission's first beliefs (its seed; lawnmower plans its lanes); once."""
         if not self._started:
             self.policy.reset(beliefs, self.seed)
             self._started = True
+
+    def decide(self, beliefs: Beliefs) -> list[Choice]:
+        """A move for every decider of `beliefs` (a batch of one); the first call starts the policy."""
+        self.start(beliefs)
         if not isinstance(self.policy, DDQLPolicy):
             return [Choice(int(m)) for m in self.policy.act(beliefs)[0]]
         d = self.policy.decide(beliefs)
         return [
             Choice(
                 int(m),
-                hashlib.sha1(o.tobytes()).hexdigest()[:16],
+                obs_digest(o),
                 [round(float(v), 4) for v in qv],
                 "frontier" if by else None,
             )
             for m, o, qv, by in zip(d.moves[0], d.obs[0], d.q[0], d.by_frontier[0])
         ]
+
+    def choose(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> list[Choice]:
+        """Moves for the searching agents whose Knowledge is given (`beliefs`, then `decide`)."""
+        if not knowledges:
+            return []
+        return self.decide(self.beliefs(knowledges, step, vehicles))

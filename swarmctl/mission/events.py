@@ -1,5 +1,5 @@
-"""The recording's event schema: every kind of line in events.jsonl and knowledge.jsonl, every field,
-its type and unit, in one table.
+"""The recording's event schema: every kind of line in events.jsonl, knowledge.jsonl and inputs.jsonl,
+every field, its type and unit, in one table.
 
 The recorder writes these lines, `swarmctl replay` reads them back through `check_event`, and
 docs/recording.md shows the tables `schema_markdown()` renders from this module (a test keeps the two
@@ -9,8 +9,8 @@ a test can hold a fresh recording to the table.
 
 Field kinds: `int`, `number` (int or float), `str`, `bool`, `cell` ([x, y] grid indices, ints >= 0),
 `cells` (a list of cells), `xy` ([x, y] ints of any sign: a cell that may lie off the grid), `latlon`
-([lat, lon] degrees), `latlons` (a list of them), `numbers`, `strs`, and `records NAME` (a list of
-objects following the record schema NAME below).
+([lat, lon] degrees), `latlons` (a list of them), `ints`, `numbers`, `strs`, and `records NAME` (a
+list of objects following the record schema NAME below).
 """
 
 from __future__ import annotations
@@ -82,6 +82,13 @@ RECORDS: dict[str, tuple[str, tuple[Field, ...]]] = {
             Field("received", "int", "messages", "knowledge messages its agent accepted since the last step"),
         ),
     ),
+    "inputs held": (
+        "one vehicle that did not search in an `inputs` line: the guard kept its cell free",
+        (
+            Field("index", "int", "-", "its mission index (the mission line's order); -1: another process's vehicle"),
+            Field("cell", "cell", "cells", "the cell it held"),
+        ),
+    ),
 }
 
 EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
@@ -101,6 +108,24 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
                 "deg",
                 "the geofence polygon uploaded to every vehicle (null: no fence)",
                 nullable=True,
+            ),
+            Field("seed", "int", "-", "the seed of the policy's random draws", required=False),
+            Field(
+                "weights_sha256",
+                "str",
+                "-",
+                "ddql: the sha256 of the network's weights (the checkpoint's `weights_sha256`; null: a planner)",
+                required=False,
+                nullable=True,
+            ),
+            Field(
+                "forward",
+                "str",
+                "-",
+                "ddql: what ran the network (null: a planner)",
+                required=False,
+                nullable=True,
+                values=("torch", "onnx"),
             ),
         ),
     ),
@@ -253,6 +278,38 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             Field("targets", "cells", "cells", "the target cells the vehicle knows of"),
         ),
     ),
+    "inputs": (
+        "inputs.jsonl",
+        "one decision round's inputs: the beliefs of the vehicles that searched, as the policy was given them, "
+        "and the guard's view (swarmctl.mission.inputs; the policy was given step `step` - 1)",
+        (
+            _STEP,
+            Field("vehicles", "strs", "-", "the vehicles that searched, in the order the policy took them"),
+            Field(
+                "since",
+                "ints",
+                "steps",
+                "per vehicle: the step of its previous line its map changes are counted from (0: from an empty map)",
+            ),
+            Field("map", "ints", "-", "per vehicle: its entry of `maps` (-1: its map did not change)"),
+            Field(
+                "maps",
+                "strs",
+                "-",
+                "map changes: base64 of zlib of the changed cells' flat indices x * H + y (uint32 little-endian, "
+                "each the difference to the one before) and their values (uint16 little-endian: phi_hat "
+                "quantised to 0..255 where explored in bits 0-7, explored 256, known obstacle 512, known target 1024)",
+            ),
+            Field(
+                "positions",
+                "str",
+                "-",
+                "base64 of zlib of int16 little-endian (vehicles x N x 3): where each of them believes each of "
+                "the N vehicles is (x, y; -1, -1: unknown) and whether it hovers on a target (1)",
+            ),
+            Field("held", "records inputs held", "-", "the guard's other vehicles, in the guard's order"),
+        ),
+    ),
 }
 
 
@@ -292,6 +349,7 @@ _CHECKS = {
     "xy": lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(c) for c in v),
     "latlon": _is_latlon,
     "latlons": lambda v: isinstance(v, list) and all(_is_latlon(c) for c in v),
+    "ints": lambda v: isinstance(v, list) and all(_is_int(c) for c in v),
     "numbers": lambda v: isinstance(v, list) and all(_is_number(c) for c in v),
     "strs": lambda v: isinstance(v, list) and all(isinstance(c, str) for c in v),
 }

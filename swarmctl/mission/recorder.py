@@ -9,15 +9,17 @@ events.jsonl     one JSON object per line: state changes, link events, guard ref
                  Q-values, chosen and guarded move, knowledge received)
 knowledge.jsonl  one "knowledge" line per vehicle and step: the cells it has explored and the
                  targets it knows of after the round (only when they changed since its last line)
+inputs.jsonl     one "inputs" line per decision round: the beliefs the deciding vehicles had and the
+                 guard's view, for `swarmctl replay --verify` (swarmctl.mission.inputs)
 mission.toml     a copy of the mission file (when there is one)
 grid.npz         a copy of the grid
 summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
 
 Every line's fields, types and units: swarmctl.mission.events (docs/recording.md).
 
-A crash at any moment leaves every file readable up to that moment: each line of events.jsonl and
-knowledge.jsonl is handed to the operating system as it is written (a SIGKILL loses at most a line
-being written, never one already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
+A crash at any moment leaves every file readable up to that moment: each line of events.jsonl,
+knowledge.jsonl and inputs.jsonl is handed to the operating system as it is written (a SIGKILL loses
+at most a line being written, never one already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
 replaced whole (written beside, then renamed over), so it is always one complete summary. The files
 are flushed to the operating system, not synced to the disk: a crash of the machine itself may lose more.
 """
@@ -38,6 +40,8 @@ from typing import IO, Any
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from swarmctl.mission.inputs import InputsEncoder
 
 _TS = struct.Struct(">Q")
 TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (CONTRACTS: at least once a second)
@@ -72,6 +76,8 @@ class Recorder:
         self._events = (self.folder / "events.jsonl").open("w", encoding="utf-8")
         self._knowledge: IO[str] | None = None  # knowledge.jsonl, opened with the first snapshot
         self._known: dict[str, tuple[int, int]] = {}  # vehicle -> (cells, targets) of its last snapshot
+        self._inputs: IO[str] | None = None  # inputs.jsonl, opened with the first decision round
+        self._encoder = InputsEncoder()
         self._parser = mavlink2.MAVLink(None)
         self._parser.robust_parsing = True
         self.packets = 0
@@ -171,13 +177,28 @@ class Recorder:
             self._knowledge.flush()
         return len(lines)
 
+    def inputs(self, step: int, names: list[str], beliefs: Any, held: list[tuple[int, tuple[int, int]]]) -> None:
+        """Round `step`'s "inputs" line: the Beliefs the policy decided on for the vehicles `names` (in
+        the batch's order) and the guard's other vehicles `held` as (mission index, or -1 for another
+        process's vehicle, cell), in the guard's order."""
+        fields = self._encoder.line(step, names, beliefs, held)
+        line = json.dumps({"t": time.time(), "event": "inputs", **fields}, separators=(",", ":")) + "\n"
+        with self._lock:
+            if self.closed:
+                return
+            if self._inputs is None:
+                self._inputs = (self.folder / "inputs.jsonl").open("w", encoding="utf-8")
+            self._inputs.write(line)
+            self._inputs.flush()
+
     def flush(self) -> None:
         with self._lock:
             if not self.closed:
                 self._tlog.flush()
                 self._events.flush()
-                if self._knowledge is not None:
-                    self._knowledge.flush()
+                for f in (self._knowledge, self._inputs):
+                    if f is not None:
+                        f.flush()
 
     # --- files -----------------------------------------------------------------------------------------
     def copy_inputs(self, mission_file: Path | None, grid_file: Path | None, grid: Any = None) -> None:
@@ -209,5 +230,6 @@ class Recorder:
             self.closed = True
             self._tlog.close()
             self._events.close()
-            if self._knowledge is not None:
-                self._knowledge.close()
+            for f in (self._knowledge, self._inputs):
+                if f is not None:
+                    f.close()

@@ -4,7 +4,8 @@ Each round, for the agents of this process that are searching:
 1. merge what arrived on the knowledge channel, track the distance flown;
 2. state updates: each agent's own transitions (link, pilot, battery: Agent.next_state), and an
    agent on a known target cell that no other vehicle hovers over starts hovering there;
-3. the policy chooses a move for every searching agent at once (one batch);
+3. the policy chooses a move for every searching agent at once (one batch), and the recording keeps
+   the beliefs it chose on (inputs.jsonl, for `swarmctl replay --verify`);
 4. the safety guard checks the moves against the grid, the blocked cells and the cells every other
    vehicle holds or moves to (refused moves become "stay" and are logged);
 5. each moving vehicle gets the position target for its cell centre at the mission altitude, and the
@@ -126,7 +127,9 @@ async def decision_round(c: Controller) -> bool:
     timing = c.plan.spec.timing
     searching = [a for a in c.agents if a.state is State.SEARCH]
     t = time.monotonic()
-    choices = c.policy.choose([a.knowledge for a in searching], c.step, len(c.plan.spec.vehicles))
+    n = len(c.plan.spec.vehicles)
+    beliefs = c.policy.beliefs([a.knowledge for a in searching], c.step, n) if searching else None
+    choices = c.policy.decide(beliefs) if beliefs is not None else []
     c.decide_times.append(time.monotonic() - t)
     proposed = {
         a.index: (a.cell[0] + int(MOVES[ch.move][0]), a.cell[1] + int(MOVES[ch.move][1]))
@@ -143,6 +146,9 @@ async def decision_round(c: Controller) -> bool:
     )
     guarded = {a.index: d for a, d in zip(order, decisions)}
     c.step += 1
+    if beliefs is not None:  # what --verify decides again: the beliefs, and the guard's other vehicles
+        held_cells = [(a.index, a.cell) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
+        c.rec.inputs(c.step, [a.name for a in searching], beliefs, held_cells)
     moves: list[tuple[Agent, tuple[int, int]]] = []
     records = []
     for a, ch in zip(searching, choices):

@@ -11,6 +11,7 @@ from swarmctl.bounds import real, whole, writable_folder
 from swarmctl.errors import InputError
 
 MAX_PANELS = 100  # pictures one --steps may ask for
+MIN_PROBABILITY = 0.01  # --verify's default: a softmax move less likely than this (draw not reproduced) fails
 
 
 def _steps(value: str | None) -> list[int] | None:
@@ -99,6 +100,27 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     "(the page then loads tiles from the network; without it the page is fully offline).",
 )
 @click.option("--attribution", default="", help="Attribution text shown with the basemap (e.g. (c) OpenStreetMap).")
+@click.option(
+    "--verify",
+    is_flag=True,
+    help="Instead of the outputs: decide every recorded decision again with the recorded policy on the recorded "
+    "beliefs and list the mismatches (exit 1 when there are any); writes verify.json to --out.",
+)
+@click.option(
+    "--model",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="--verify: the checkpoint the mission flew, when it is no longer where the recording names it (its "
+    "weights must have the recorded sha256).",
+)
+@click.option(
+    "--min-probability",
+    type=real(0, 1),
+    default=MIN_PROBABILITY,
+    show_default=True,
+    help="--verify, softmax policies: where the draw cannot be reproduced, a recorded move less likely than this "
+    "under the model is a mismatch.",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing; no progress bar.")
 def replay_command(
     recording: Path,
@@ -112,6 +134,9 @@ def replay_command(
     buildings: Path | None,
     basemap: str | None,
     attribution: str,
+    verify: bool,
+    model: Path | None,
+    min_probability: float,
     quiet: bool,
 ) -> None:
     """Replay a recording folder (fly, agent, demo) or a .tlog (MAVProxy, QGroundControl, SITL).
@@ -119,7 +144,7 @@ def replay_command(
     Writes map.html (offline map page with a time slider), panels-step-N.png (positions, known map,
     true map), animation.gif (and .mp4 with ffmpeg), tracks.geojson / tracks.kml, targets.geojson /
     targets.kml, the plots and summary.txt. Damaged logs are replayed as far as they can be read, and
-    what was skipped is listed.
+    what was skipped is listed. With --verify: check the recorded decisions instead (docs/recording.md).
     """
     from tqdm import tqdm
 
@@ -136,6 +161,11 @@ def replay_command(
     if not recording.exists():
         raise InputError(f"{recording}: not found; give a recording folder (fly, agent, demo) or a .tlog file")
     folder = _out_dir(recording, out)
+    if verify:
+        _verify(recording, folder, model, min_probability, quiet)
+        return
+    if model is not None:
+        raise InputError("--model is for --verify: give --verify too, or leave --model out")
     source = recording / "mission.tlog" if recording.is_dir() else recording
     size = source.stat().st_size if source.is_file() else 0
     with tqdm(
@@ -164,3 +194,28 @@ def replay_command(
         for line in lines:
             click.echo(line)
         click.echo(f"wrote {len(written)} files to {folder}: {', '.join(p.name for p in written)}")
+
+
+def _verify(recording: Path, folder: Path, model: Path | None, min_probability: float, quiet: bool) -> None:
+    """--verify: the report on stdout and in verify.json; exit 1 when a decision was not reproduced."""
+    import json
+
+    from tqdm import tqdm
+
+    from swarmctl.errors import EXIT_FAILED
+    from swarmctl.replay.verify import verify
+
+    with tqdm(unit="round", desc="verify", disable=quiet, delay=0.5, leave=False, mininterval=1.0) as bar:
+
+        def total(n: int) -> None:
+            bar.total = n
+            bar.refresh()
+
+        report = verify(recording, model, min_probability, progress=bar.update, total=total)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "verify.json").write_text(json.dumps(report.as_dict(), indent=1) + "\n", encoding="utf-8")
+    if not quiet:
+        for line in report.lines():
+            click.echo(line)
+    if not report.ok:
+        raise click.exceptions.Exit(EXIT_FAILED)
