@@ -106,6 +106,12 @@ class Scenario:
         return None
 
 
+# the swarms the tests and tools/sitl_search.py fly, from cells along the grid's south edge
+TRIO = [Craft("alpha", ARDUCOPTER, (0, 0)), Craft("bravo", ARDUCOPTER, (2, 0)), Craft("charlie", ARDUCOPTER, (4, 0))]
+PX4_PAIR = [Craft("papa", PX4, (0, 0)), Craft("quebec", PX4, (3, 0))]
+MIXED = [Craft("papa", PX4, (0, 0)), Craft("alpha", ARDUCOPTER, (2, 0)), Craft("bravo", ARDUCOPTER, (4, 0))]
+
+
 # --- the instance numbers: one table for every scenario of this process -----------------------------------
 
 
@@ -529,15 +535,31 @@ class Flights:
         """The scenario's result once it has flown (its exception if it could not)."""
         return self.futures[name].result(timeout)
 
+    def timing(self, name: str) -> str:
+        """One line: how long the scenario flew and when it was done, or why it did not fly."""
+        future = self.futures[name]
+        if not future.done():
+            return "not done"
+        if future.exception() is not None:
+            return f"did not fly ({type(future.exception()).__name__})"
+        result = future.result()
+        return f"{result.marks['scenario_s']} s (fly {result.wall_s} s), done {result.marks['done_after_s']} s in"
+
     def __exit__(self, *exc: object) -> None:
         self.stopping.set()  # scenarios still waiting give up; flights in progress are stopped
         for thread in self.threads:
             thread.join()
 
 
+LANDED_ALT_M = 2.0  # PX4 SIH read 1.1 m above home disarmed on the ground (its altitude estimate drifts)
+
+
 def within(metres: float, landing: Landing | None) -> bool:
-    """The vehicle is on the ground, disarmed, within `metres` of its home."""
-    return landing is not None and not landing.armed and landing.rel_alt < 1.0 and landing.from_home_m <= metres
+    """The vehicle is on the ground (disarmed, within LANDED_ALT_M of its home's altitude), within
+    `metres` of its home."""
+    if landing is None or landing.armed:
+        return False
+    return abs(landing.rel_alt) < LANDED_ALT_M and landing.from_home_m <= metres
 
 
 def cells_apart(a: tuple[int, int], b: tuple[int, int]) -> float:

@@ -12,14 +12,25 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.sitl_fly import ARDUCOPTER, PX4, Craft, Flight, FlightResult, Flights, Scenario, Unavailable, within
+from tests.sitl_fly import (
+    ARDUCOPTER,
+    MIXED,
+    PX4_PAIR,
+    TRIO,
+    Craft,
+    Flight,
+    FlightResult,
+    Flights,
+    Scenario,
+    Unavailable,
+    within,
+)
 
 pytestmark = pytest.mark.sitl
 
 HOME_M = 3.0  # "landed at home": within this of the home the autopilot reports (RTL lands 0.02-0.7 m off)
 MIN_CELLS = 3  # distinct cells per vehicle in CI's short search (CONTRACTS' CI budget)
 FOV = 3  # the planners' sensing radius in cells (the mission's footprint)
-TRIO = [Craft("alpha", ARDUCOPTER, (0, 0)), Craft("bravo", ARDUCOPTER, (2, 0)), Craft("charlie", ARDUCOPTER, (4, 0))]
 DDQL = "ddql:models/obstacles-3uav.pt:straggler=frontier"
 
 
@@ -52,15 +63,11 @@ SCENARIOS = {
         Scenario("trio-ddql", TRIO, time_limit=20.0, policy=DDQL),
         Scenario("detector", [Craft("alpha", ARDUCOPTER, (0, 0), detector=True)], time_limit=40.0, targets=((3, 3),)),
         Scenario("kill", TRIO, time_limit=120.0, during=kill_then_terminate("charlie", ["alpha", "bravo"])),
-        Scenario("px4-pair", [Craft("papa", PX4, (0, 0)), Craft("quebec", PX4, (3, 0))], time_limit=30.0),
-        Scenario(
-            "mixed",
-            [Craft("papa", PX4, (0, 0)), Craft("alpha", ARDUCOPTER, (2, 0)), Craft("bravo", ARDUCOPTER, (4, 0))],
-            time_limit=30.0,
-        ),
+        Scenario("px4-pair", PX4_PAIR, time_limit=30.0),
+        Scenario("mixed", MIXED, time_limit=30.0),
         Scenario(
             "px4-kill",
-            [Craft("papa", PX4, (0, 0)), Craft("quebec", PX4, (3, 0))],
+            PX4_PAIR,
             time_limit=120.0,
             during=kill_then_terminate("quebec", ["papa"]),
         ),
@@ -78,6 +85,13 @@ def flights(request):
             wanted.append(marker.args[0])
     with Flights([SCENARIOS[name] for name in wanted]) as running:
         yield running
+    reporter = request.config.pluginmanager.get_plugin("terminalreporter")
+    capture = request.config.pluginmanager.get_plugin("capturemanager")
+    if reporter is not None and capture is not None:  # the CI budget's figures: each scenario's wall time
+        with capture.global_and_fixture_disabled():
+            reporter.write_line("")
+            for name in wanted:
+                reporter.write_line(f"SITL scenario {name}: {running.timing(name)}")
 
 
 def flown(flights: Flights, name: str) -> FlightResult:
