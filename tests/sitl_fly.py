@@ -541,7 +541,7 @@ class Flights:
         if not future.done():
             return "not done"
         if future.exception() is not None:
-            return f"did not fly ({type(future.exception()).__name__})"
+            return f"did not fly ({future.exception()})".splitlines()[0]
         result = future.result()
         return f"{result.marks['scenario_s']} s (fly {result.wall_s} s), done {result.marks['done_after_s']} s in"
 

@@ -3,13 +3,14 @@ reports what a camera over the hidden targets would see, as a mission's `detecto
 expects it.
 
 The controller flies the vehicle on one link (ArduCopter SITL's SERIAL0, tcp:127.0.0.1:5760+10N); this
-tool listens to another (SERIAL1, tcp:127.0.0.1:5762+10N, or SERIAL2, +3; a PX4's ground-station link,
-udpin:0.0.0.0:14550, where every PX4 instance sends), asks it for GLOBAL_POSITION_INT from --sysid, maps each
-position to the mission's grid and, each time the vehicle hovers at the mission altitude within
+tool listens to another (SERIAL1, tcp:127.0.0.1:5762+10N, or SERIAL2, +3), asks it for
+GLOBAL_POSITION_INT from --sysid, maps each position to the mission's grid and, each time the vehicle
+hovers at the mission altitude within
 --tolerance metres of a cell centre, sends that cell's report (the targets in view, then the cells of
 its field of view) to the controller's detector socket in MAVLink 2 TUNNEL frames, as
 swarmctl.sim.detector.SimDetector does for the mock vehicles (swarmctl/mission/detector.py describes
-the payloads). It runs until it is stopped (SIGTERM, Ctrl-C); each report is one line on stdout.
+the payloads). It runs until it is stopped (SIGTERM, Ctrl-C); each report is one line on stdout. Bad
+arguments: one line on stderr, exit status 2.
 
     python tools/sitl_detector.py --telemetry tcp:127.0.0.1:5762 --sysid 1 --grid missions/chicago-loop/grid.npz \\
         --mission-id 7 --altitude 40 --vehicle 0 --target 4,1 --send udp:127.0.0.1:14650
@@ -72,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
     grid = GeoGrid.load(args.grid)
     for x, y in args.target:
         if not (0 <= x < grid.width and 0 <= y < grid.height):
-            raise SystemExit(f"sitl_detector: --target {x},{y} is outside the {grid.width} x {grid.height} grid")
+            print(f"sitl_detector: --target {x},{y} is outside the {grid.width} x {grid.height} grid", file=sys.stderr)
+            return 2
     detector = SimDetector(
         grid,
         np.array(args.target, dtype=np.int64).reshape(-1, 2),
