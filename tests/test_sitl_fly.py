@@ -63,8 +63,8 @@ SCENARIOS = {
         Scenario("trio-ddql", TRIO, time_limit=20.0, policy=DDQL),
         Scenario("detector", [Craft("alpha", ARDUCOPTER, (0, 0), detector=True)], time_limit=40.0, targets=((3, 3),)),
         Scenario("kill", TRIO, time_limit=120.0, during=kill_then_terminate("charlie", ["alpha", "bravo"])),
-        Scenario("px4-pair", PX4_PAIR, time_limit=30.0),
-        Scenario("mixed", MIXED, time_limit=30.0),
+        Scenario("px4-pair", PX4_PAIR, time_limit=40.0),
+        Scenario("mixed", MIXED, time_limit=40.0),
         Scenario(
             "px4-kill",
             PX4_PAIR,
