@@ -62,6 +62,7 @@ DETECTOR_PORT = 14650  # + the instance number: the mission's detector socket fo
 # after arming: ten times the capacity lets a sped-up flight run its course
 BATTERY_MAH = 33000
 POLL_S = 0.2
+POOL_WAIT_S = 900.0  # a scenario waits this long for instance numbers (the others' flights end sooner)
 
 
 class Unavailable(SitlError):
@@ -128,16 +129,25 @@ class InstancePool:
         return [n for n in table if (kind, n) not in self._held and busy(n) is None]
 
     @contextlib.contextmanager
-    def hold(self, arducopters: int, px4s: int, stopping: threading.Event) -> Iterator[tuple[list[int], list[int]]]:
-        """Wait until that many numbers of each table are free, and hold them until the block ends."""
+    def hold(
+        self, arducopters: int, px4s: int, stopping: threading.Event, timeout: float = POOL_WAIT_S
+    ) -> Iterator[tuple[list[int], list[int]]]:
+        """Wait until that many numbers of each table are free, and hold them until the block ends;
+        SitlError after `timeout` seconds (another program's instances hold them)."""
         for kind, count, table in ((ARDUCOPTER, arducopters, ARDUCOPTER_INSTANCES), (PX4, px4s, PX4_INSTANCES)):
             if count > len(table):
                 raise SitlError(f"{count} {kind} instances wanted, the table has {len(table)}")
+        deadline = time.monotonic() + timeout
         with self._changed:
             while True:
                 if stopping.is_set():
                     raise SitlError("stopped while waiting for instance numbers")
                 free_ac, free_px4 = self._free(ARDUCOPTER), self._free(PX4)
+                if time.monotonic() > deadline:
+                    raise SitlError(
+                        f"{arducopters} ArduCopter and {px4s} PX4 instance numbers wanted, free after {timeout:g} s: "
+                        f"ArduCopter {free_ac}, PX4 {free_px4} (stop the other SITL runs)"
+                    )
                 if len(free_ac) >= arducopters and len(free_px4) >= px4s:
                     taken = [(ARDUCOPTER, n) for n in free_ac[:arducopters]] + [(PX4, n) for n in free_px4[:px4s]]
                     self._held.update(taken)

@@ -201,3 +201,24 @@ def test_a_mixed_swarm_of_px4_and_arducopter_searches_shares_and_comes_home(flig
 @pytest.mark.scenario("px4-kill")
 def test_a_px4_killed_mid_mission_the_other_carries_on_and_sigterm_ends_with_130(flights):
     assert_lost_and_interrupted(flown(flights, "px4-kill"), "quebec", ["papa"])
+
+
+# --- the harness ---------------------------------------------------------------------------------------------
+
+
+def test_the_pool_hands_each_number_to_one_scenario_and_a_wait_for_more_than_are_free_ends(monkeypatch):
+    import threading
+
+    from tests import sitl_fly
+
+    monkeypatch.setattr(sitl_fly, "arducopter_busy", lambda n: "busy" if n == 4 else None)  # another program's
+    monkeypatch.setattr(sitl_fly, "instance_busy", lambda n: None)
+    pool, stopping = sitl_fly.InstancePool(), threading.Event()
+    with pool.hold(2, 1, stopping, timeout=5.0) as (ac, px4):
+        with pool.hold(2, 1, stopping, timeout=5.0) as (ac2, px42):
+            assert (ac, ac2, px4, px42) == ([0, 1], [2, 3], [5], [6])
+        with pytest.raises(sitl_fly.SitlError, match=r"free after 0.3 s: ArduCopter \[2, 3\]"):
+            with pool.hold(3, 0, stopping, timeout=0.3):
+                pass
+    with pool.hold(4, 0, stopping, timeout=5.0) as (again, _):
+        assert again == [0, 1, 2, 3]  # released numbers are handed out again; 4 stays another program's
