@@ -1,10 +1,10 @@
 """Real PX4 SITL instances (SIH physics, no simulator process) for the tests: start, wait on, stop.
 
-The binary comes from the environment variable SWARMCTL_PX4, by default ../shared/px4/bin/px4 beside
-the repository, its start-up scripts in ../etc beside bin/; without it the tests are skipped with the
-reason. PX4's shell runs its commands as `px4-NAME` links to the binary found beside it; a copy may have
-lost them (../shared has them as 3-byte files), so each run builds a bin/ folder of its own: a link to
-the binary, px4-alias.sh and one px4-NAME link per alias in it.
+The binary comes from the environment variable PX4_SITL (SWARMCTL_PX4, its older name, is read too), by
+default ../shared/px4/bin/px4 beside the repository, its start-up scripts in ../etc beside bin/; without
+it the tests are skipped with the reason. PX4's shell runs its commands as `px4-NAME` links to the binary
+found beside it; a copy may have lost them (../shared has them as 3-byte files), so each run builds a
+bin/ folder of its own: a link to the binary, px4-alias.sh and one px4-NAME link per alias in it.
 
 Instance N (CONTRACTS' table: 5-9, system id N+1) sends its ground-station link from UDP 18570+N to
 127.0.0.1:14550 and its API (offboard) link from 14580+N to 127.0.0.1:14540+N: a client listens on
@@ -24,9 +24,19 @@ from pathlib import Path
 
 import pytest
 
-from tests.sitl_support import SHARED, SimProcess, SitlError, homes_for, require_binary, sim_run, udp_bound, wait_until
+from tests.sitl_support import (
+    SHARED,
+    SimProcess,
+    SitlError,
+    binary_path,
+    homes_for,
+    missing_binary,
+    sim_run,
+    udp_bound,
+    wait_until,
+)
 
-PX4_ENV = "SWARMCTL_PX4"
+PX4_ENV = ("PX4_SITL", "SWARMCTL_PX4")  # the first one set wins
 PX4_DEFAULT = SHARED / "px4" / "bin" / "px4"
 PX4_INSTANCES = tuple(range(5, 10))  # CONTRACTS: PX4 -i 5-9 (system id 6-10)
 PX4_HOME = (41.879653, -87.635357, 180.0)  # lat, lon, alt AMSL: the Chicago Loop take-off point
@@ -43,13 +53,23 @@ def socket_file(instance: int) -> Path:
     return Path(f"/tmp/px4-sock-{instance}")
 
 
+def px4_missing() -> str | None:
+    """Why PX4 SITL cannot be run here (the binary or its etc/ start-up scripts are missing), or None."""
+    why = missing_binary(PX4_ENV, PX4_DEFAULT, "PX4 SITL binary")
+    binary = binary_path(PX4_ENV, PX4_DEFAULT)
+    etc = binary.parent.parent / "etc"
+    if why is None and not (etc / "init.d-posix" / "rcS").is_file():
+        why = f"no PX4 start-up scripts at {etc}/init.d-posix/rcS (beside the binary {binary})"
+    return why
+
+
 def require_px4() -> tuple[Path, Path]:
     """The PX4 SITL binary and its etc/ folder; skips the test when either is missing."""
-    binary = require_binary(PX4_ENV, PX4_DEFAULT, "PX4 SITL binary")
-    etc = binary.parent.parent / "etc"
-    if not (etc / "init.d-posix" / "rcS").is_file():
-        pytest.skip(f"no PX4 start-up scripts at {etc}/init.d-posix/rcS (beside the binary {binary})")
-    return binary, etc
+    why = px4_missing()
+    if why is not None:
+        pytest.skip(why)
+    binary = binary_path(PX4_ENV, PX4_DEFAULT)
+    return binary, binary.parent.parent / "etc"
 
 
 def make_bin(binary: Path, folder: Path) -> int:
@@ -138,10 +158,13 @@ def px4_sitl(
     homes: Sequence[tuple[float, float, float]] | None = None,
     instances: Sequence[int] | None = None,
     timeout: float = 30.0,
+    speed: float = 1.0,
 ) -> Iterator[list[PX4Sitl]]:
     """Start `count` PX4 SITL instances (SIH quadrotor) in parallel and yield them once each has run its
-    start-up script and bound its MAVLink ports. Every instance is stopped, its folder removed and its
-    /tmp socket and lock removed on the way out, whatever happened."""
+    start-up script and bound its MAVLink ports. `speed` runs the simulation that many times faster than
+    the wall clock (PX4_SIM_SPEED_FACTOR; PX4's start-up script lengthens its link-loss timeouts by it).
+    Every instance is stopped, its folder removed and its /tmp socket and lock removed on the way out,
+    whatever happened."""
     binary, etc = require_px4()
     chosen = list(instances) if instances is not None else free_px4_instances(count)
     vehicles: list[PX4Sitl] = []
@@ -151,6 +174,8 @@ def px4_sitl(
             for n, home in homes_for(chosen, homes, PX4_HOME):
                 env = {**PX4_ENV_VARS, "PX4_HOME_LAT": repr(home[0]), "PX4_HOME_LON": repr(home[1])}
                 env["PX4_HOME_ALT"] = repr(home[2])
+                if speed != 1.0:
+                    env["PX4_SIM_SPEED_FACTOR"] = f"{speed:g}"
                 argv = [str(root / "bin" / "px4"), "-d", "-i", str(n), "-w", str(root / f"i{n}"), str(etc)]
                 procs.append(SimProcess(f"PX4 SITL -i {n}", argv, root / f"i{n}", env).start())
                 vehicles.append(PX4Sitl(n, home, procs[-1]))

@@ -1,10 +1,11 @@
 """Real ArduCopter SITL instances for the tests: start them in parallel, wait on them, always stop them.
 
-The binary comes from the environment variable SWARMCTL_ARDUCOPTER, by default ../shared/sitl/arducopter
-beside the repository, with ArduPilot's copter.parm next to it; without it the tests are skipped with
-the reason. Each instance runs in a temporary folder of its own (a fresh one is fresh parameters),
-removed when it stops. Instance N (CONTRACTS' table: 0-4, system id N+1) listens on TCP 5760+10N
-(SERIAL0; it waits for a client there before it boots), 5762+10N and 5763+10N once booted.
+The binary comes from the environment variable ARDUPILOT_SITL (SWARMCTL_ARDUCOPTER, its older name, is
+read too), by default ../shared/sitl/arducopter beside the repository, with ArduPilot's copter.parm next
+to it; without it the tests are skipped with the reason. Each instance runs in a temporary folder of its
+own (a fresh one is fresh parameters), removed when it stops. Instance N (CONTRACTS' table: 0-4, system
+id N+1) listens on TCP 5760+10N (SERIAL0; it waits for a client there before it boots), 5762+10N and
+5763+10N once booted.
 
 The process helpers here (SimProcess, wait_until, stop_all, the /proc/net port checks and the plain
 pymavlink client) serve tests/px4_support.py too.
@@ -29,7 +30,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
 
-ARDUCOPTER_ENV = "SWARMCTL_ARDUCOPTER"
+ARDUCOPTER_ENV = ("ARDUPILOT_SITL", "SWARMCTL_ARDUCOPTER")  # the first one set wins
 ARDUCOPTER_DEFAULT = SHARED / "sitl" / "arducopter"
 ARDUCOPTER_INSTANCES = tuple(range(5))  # CONTRACTS: ArduCopter -I 0-4 with --sysid 1-5
 CHICAGO_HOME = (41.879653, -87.635357, 180.0, 0.0)  # lat, lon, alt AMSL, heading: the Chicago Loop take-off point
@@ -45,28 +46,54 @@ class SitlError(RuntimeError):
 # --- binaries -----------------------------------------------------------------------------------------
 
 
-def binary_path(env: str, default: Path) -> Path:
-    """The binary named by the environment variable `env`, else `default` (it may not exist)."""
-    value = os.environ.get(env, "").strip()
-    return Path(value).expanduser().resolve() if value else default
+def _names(env: str | Sequence[str]) -> tuple[str, ...]:
+    return (env,) if isinstance(env, str) else tuple(env)
 
 
-def require_binary(env: str, default: Path, what: str) -> Path:
-    """The binary's path; skips the calling test with the reason when it is not an executable file."""
+def binary_path(env: str | Sequence[str], default: Path) -> Path:
+    """The binary named by the first of the environment variables `env` that is set, else `default` (it
+    may not exist)."""
+    for name in _names(env):
+        value = os.environ.get(name, "").strip()
+        if value:
+            return Path(value).expanduser().resolve()
+    return default
+
+
+def missing_binary(env: str | Sequence[str], default: Path, what: str) -> str | None:
+    """Why the binary cannot be run (a skip reason naming the path and the variable), or None."""
     path = binary_path(env, default)
-    if not (path.is_file() and os.access(path, os.X_OK)):
-        source = f"from ${env}" if os.environ.get(env, "").strip() else f"the default; set ${env} to use another"
-        pytest.skip(f"no {what} at {path} ({source})")
-    return path
+    if path.is_file() and os.access(path, os.X_OK):
+        return None
+    given = [name for name in _names(env) if os.environ.get(name, "").strip()]
+    source = f"from ${given[0]}" if given else f"the default; set ${_names(env)[0]} to use another"
+    return f"no {what} at {path} ({source})"
+
+
+def require_binary(env: str | Sequence[str], default: Path, what: str) -> Path:
+    """The binary's path; skips the calling test with the reason when it is not an executable file."""
+    why = missing_binary(env, default, what)
+    if why is not None:
+        pytest.skip(why)
+    return binary_path(env, default)
+
+
+def arducopter_missing() -> str | None:
+    """Why ArduCopter SITL cannot be run here (the binary or the copter.parm beside it is missing), or None."""
+    why = missing_binary(ARDUCOPTER_ENV, ARDUCOPTER_DEFAULT, "ArduCopter SITL binary")
+    binary = binary_path(ARDUCOPTER_ENV, ARDUCOPTER_DEFAULT)
+    if why is None and not (binary.parent / "copter.parm").is_file():
+        why = f"no copter.parm beside the ArduCopter SITL binary {binary}"
+    return why
 
 
 def require_arducopter() -> tuple[Path, Path]:
     """The ArduCopter SITL binary and the copter.parm beside it; skips the test when either is missing."""
-    binary = require_binary(ARDUCOPTER_ENV, ARDUCOPTER_DEFAULT, "ArduCopter SITL binary")
-    parm = binary.parent / "copter.parm"
-    if not parm.is_file():
-        pytest.skip(f"no copter.parm beside the ArduCopter SITL binary {binary}")
-    return binary, parm
+    why = arducopter_missing()
+    if why is not None:
+        pytest.skip(why)
+    binary = binary_path(ARDUCOPTER_ENV, ARDUCOPTER_DEFAULT)
+    return binary, binary.parent / "copter.parm"
 
 
 # --- ports (from /proc/net: looking never disturbs a listener) ------------------------------------------
@@ -240,10 +267,21 @@ class ArduCopterSitl:
         return f"tcp:127.0.0.1:{self.port}"
 
 
+def arducopter_ports(instance: int) -> tuple[int, int, int]:
+    """Instance N's TCP ports: SERIAL0, SERIAL1, SERIAL2."""
+    return (5760 + 10 * instance, 5762 + 10 * instance, 5763 + 10 * instance)
+
+
+def arducopter_busy(instance: int) -> str | None:
+    """Why ArduCopter instance number `instance` cannot be used now (None when it can)."""
+    listening = _local_ports("tcp", _TCP_LISTEN)
+    taken = [port for port in arducopter_ports(instance) if port in listening]
+    return f"TCP {taken[0]} is in use" if taken else None
+
+
 def free_arducopter_instances(count: int) -> list[int]:
     """`count` instance numbers from CONTRACTS' table whose TCP ports nobody listens on."""
-    listening = _local_ports("tcp", _TCP_LISTEN)
-    free = [n for n in ARDUCOPTER_INSTANCES if not {5760 + 10 * n + k for k in (0, 2, 3)} & listening]
+    free = [n for n in ARDUCOPTER_INSTANCES if arducopter_busy(n) is None]
     if len(free) < count:
         raise SitlError(
             f"{count} ArduCopter SITL instances wanted but only {free} of {list(ARDUCOPTER_INSTANCES)} are free "

@@ -1,6 +1,6 @@
 """Real ArduCopter and PX4 SITL answer plain pymavlink, and the harness always cleans up after them.
 
-Skipped with the reason when the binaries are absent (SWARMCTL_ARDUCOPTER, SWARMCTL_PX4; see
+Skipped with the reason when the binaries are absent (ARDUPILOT_SITL, PX4_SITL; see
 tests/sitl_support.py and tests/px4_support.py).
 """
 

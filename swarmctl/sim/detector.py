@@ -30,7 +30,8 @@ class SimDetector:
     """The hidden scenario a mock vehicle carries, and the detector that reports its field of view.
 
     `attach(mock)` adds a step hook to a MockAutopilot; reports go out on the mock's own MAVLink link,
-    or, with `udp=(host, port)`, as datagrams to a local detector socket (the PX4 path)."""
+    or, with `udp=(host, port)`, as datagrams to a local detector socket (the PX4 path). Without a mock,
+    `cell_to_report` and `report(None, cell)` (with `udp`) serve a detector fed a real vehicle's position."""
 
     def __init__(
         self,
@@ -73,21 +74,29 @@ class SimDetector:
             self._sock = None
 
     def _hook(self, mock: Any, _dt: float) -> None:
-        if not mock.armed or abs(mock.rel_alt - self.altitude) > max(1.0, self.tolerance):
+        cell = self.cell_to_report(mock.armed, mock.lat, mock.lon, mock.rel_alt)
+        if cell is not None:
+            self.report(mock, cell)
+
+    def cell_to_report(self, armed: bool, lat: float, lon: float, rel_alt: float) -> tuple[int, int] | None:
+        """The cell to report for a vehicle at this position now (it hovers at the mission altitude within
+        `tolerance` metres of that cell's centre, and the cell was not reported in the last `repeat`
+        seconds), else None. For a detector fed another vehicle's telemetry (tools/sitl_detector.py)."""
+        if not armed or abs(rel_alt - self.altitude) > max(1.0, self.tolerance):
             self._last = (None, 0.0)
-            return
-        x, y = self.grid.latlon_to_cell(mock.lat, mock.lon)
+            return None
+        x, y = self.grid.latlon_to_cell(lat, lon)
         if not (0 <= x < self.grid.width and 0 <= y < self.grid.height):
-            return
-        lat, lon = float(self._centres[0][x, y]), float(self._centres[1][x, y])
-        if distance_m(mock.lat, mock.lon, lat, lon) > self.tolerance:
+            return None
+        centre_lat, centre_lon = float(self._centres[0][x, y]), float(self._centres[1][x, y])
+        if distance_m(lat, lon, centre_lat, centre_lon) > self.tolerance:
             self._last = (None, 0.0)
-            return
+            return None
         now = time.monotonic()
         if self._last[0] == (x, y) and now - self._last[1] < self.repeat:
-            return
+            return None
         self._last = ((x, y), now)
-        self.report(mock, (x, y))
+        return (x, y)
 
     def observe(self, cell: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(cells, phi, obstacle, targets) in the field of view from `cell`: the truth."""
