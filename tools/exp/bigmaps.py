@@ -97,7 +97,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
 
 def figure(s: dict, path) -> None:
     rows_, cols = len(s["etas"]), len(s["clusters"])
-    fig, axes = plt.subplots(rows_, cols, figsize=(3.3 * cols, 2.9 * rows_ + 0.9), squeeze=False)
+    fig, axes = plt.subplots(rows_, cols, figsize=(max(8.0, 3.3 * cols), 2.9 * rows_ + 0.9), squeeze=False)
     for i, eta in enumerate(s["etas"]):
         for j, c in enumerate(s["clusters"]):
             ax = axes[i][j]

@@ -69,6 +69,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
                 softmax=[res[f"trained on {u} UAVs, softmax"]["success_rate"] for u in p["train_uavs"]],
                 greedy=[res[f"trained on {u} UAVs, greedy"]["success_rate"] for u in p["train_uavs"]],
                 planners={k: res[k]["success_rate"] for k in PLANNERS},
+                shipped=res["models/obstacles-3uav.pt, softmax"]["success_rate"],
             )
         )
     ours = "; ".join(
@@ -84,13 +85,14 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
 
 def figure(s: dict, path) -> None:
     n = max(1, len(s["panels"]))
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.4), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(max(8.0, 4.2 * n), 4.4), squeeze=False)
     x = np.arange(len(s["train_uavs"]))
     for ax, q in zip(axes[0], s["panels"]):
         ax.bar(x - 0.18, q["softmax"], 0.36, label="softmax (ddql:PATH)")
         ax.bar(x + 0.18, q["greedy"], 0.36, label="greedy (ddql-greedy:PATH)")
         for (name, v), style in zip(q["planners"].items(), ("-", "--", ":")):
             ax.axhline(v, color="k", ls=style, lw=1, label=name)
+        ax.axhline(q["shipped"], color="tab:red", ls="-.", lw=1, label="models/obstacles-3uav.pt (softmax)")
         ax.set_xticks(x, [f"trained on {u}" for u in s["train_uavs"]], fontsize=8)
         ax.set_title(f"tested with {q['test_uavs']} UAVs", fontsize=9)
         ax.set_ylim(0, 1)

@@ -72,7 +72,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
 
 def figure(s: dict, path) -> None:
     n = max(1, len(s["panels"]))
-    fig, axes = plt.subplots(1, n, figsize=(5.2 * n, 4.4), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(max(8.0, 5.2 * n), 4.4), squeeze=False)
     names = list(CHANNELS)
     x = np.arange(len(names))
     for ax, q in zip(axes[0], s["panels"]):

@@ -79,7 +79,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
 
 def figure(s: dict, path) -> None:
     n = max(1, len(s["panels"]))
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.6), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(max(8.0, 4.2 * n), 4.6), squeeze=False)
     for ax, panel in zip(axes[0], s["panels"]):
         for label, cdf in panel["cdf"].items():
             style = "-" if label.startswith(panel["src"]) else ("--" if "own" in label else ":")
