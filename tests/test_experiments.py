@@ -15,6 +15,15 @@ from tools.exp.common import PLANNERS
 pytestmark = pytest.mark.slow  # about 80 s for the seven fast modes
 
 
+@pytest.mark.parametrize("name", list(EXPERIMENTS))
+def test_the_full_presets_plan_valid_runs(name):
+    module = EXPERIMENTS[name]
+    runs = module.runs(experiments.parameters(module, False, []), 0)
+    keys = [r.key for r in runs]
+    assert len(set(keys)) == len(keys)
+    assert all(n in keys for r in runs for n in r.needs)
+
+
 @pytest.fixture(scope="module", params=list(EXPERIMENTS))
 def fast(request, tmp_path_factory):
     """(name, output folder, NAME.json) of one experiment's fast mode."""

@@ -5,6 +5,8 @@ in the simulator with the controller's guard."""
 
 from __future__ import annotations
 
+import re
+
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -43,6 +45,10 @@ PRESETS = {
 }
 
 
+def _flown_key(label: str, episode: int) -> str:
+    return "flown-" + re.sub(r"[^A-Za-z0-9]+", "-", label) + f"-e{episode}"
+
+
 def _policies(p: dict) -> dict:
     return {k: v for k, v in POLICIES.items() if k in p.get("policies", POLICIES)}
 
@@ -67,7 +73,7 @@ def runs(p: dict, seed: int) -> list:
                 world=p["world"], policy=spec, label=label, seed=seed, episode=e, steps=p["steps"], speedup=p["speedup"]
             )
             params["time_limit"] = p["time_limit"]
-            out.append(Run(f"flown-{label.replace('/', '_')}-e{e}", "mavlink", params, inputs))
+            out.append(Run(_flown_key(label, e), "mavlink", params, inputs))
     return out
 
 
@@ -77,7 +83,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
     for label in _policies(p):
         simulated = {e["episode"]: e for e in sim.get(label, {}).get("per_episode", [])}
         for e in range(p["episodes"]):
-            flown = results.get(f"flown-{label.replace('/', '_')}-e{e}")
+            flown = results.get(_flown_key(label, e))
             s = simulated.get(e)
             table.append(
                 dict(
