@@ -66,9 +66,11 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
             )
         )
     ddql, la = r["decision"]["ddql:PATH (our rules)"]["ms_batch1"], r["decision"]["la:4"]["ms_batch1"]
+    load = r["machine"].get("load_average_before")
     ours = (
         f"LA(4) {la:.3f} ms vs DDQL {ddql:.3f} ms per decision at batch 1 ({la / ddql:.2f}x); "
-        f"the network {flops:,} FLOPs, {limit_ms:.3f} ms at this machine's matmul rate"
+        f"the network {flops:,} FLOPs, {limit_ms:.3f} ms at the matmul rate measured beside it "
+        f"({r['matmul_flop_per_s'] / 1e9:.0f} GFLOP/s" + (f", load average {load[0]:.1f})" if load else ")")
     )
     return dict(table=table, training=training, ours=ours, machine=r["machine"])
 

@@ -5,6 +5,7 @@ scratch folder, and returns (result, {suffix: output file path}).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from tools.exp.runs import ROOT
@@ -66,6 +67,7 @@ def cost_task(params: dict, folder: Path) -> tuple[dict, dict]:
 
     set_inference_threads(1)
     seconds = params["seconds"]
+    load_before = os.getloadavg()
     rows = {}
     for label, spec in zip(params["labels"], params["policies"]):
         rows[label] = {
@@ -73,7 +75,8 @@ def cost_task(params: dict, folder: Path) -> tuple[dict, dict]:
         }
     training = {label: training_stages(path) for label, path in params.get("checkpoints", {}).items()}
     rate = matmul_flops_per_s(seconds)
-    return {"decision": rows, "training": training, "matmul_flop_per_s": rate, "machine": machine(1)}, {}
+    host = {**machine(1), "load_average_before": load_before, "load_average_after": os.getloadavg()}
+    return {"decision": rows, "training": training, "matmul_flop_per_s": rate, "machine": host}, {}
 
 
 def training_stages(path: str) -> list[dict]:
