@@ -13,7 +13,8 @@ pytestmark = pytest.mark.slow  # about 25 s: Ray's start-up and one worker
 
 @pytest.fixture(scope="module")
 def local_ray():
-    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    # address="local": a new instance even where another cluster's address is on record (/tmp/ray)
+    ray.init(address="local", num_cpus=1, include_dashboard=False, log_to_driver=False)
     yield
     ray.shutdown()
 
