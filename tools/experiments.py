@@ -4,6 +4,7 @@
     python tools/experiments.py transfer [--fast] [--seed 0] [--out DIR] [--ray auto|ADDRESS] [--workers N]
     python tools/experiments.py chicago --set test_episodes=50         # change one parameter
     python tools/experiments.py all --fast                             # every experiment, seconds each
+    python tools/experiments.py --report          # docs/RESULTS.md's sections from results/experiments/
 
 Each experiment is a set of independent runs (training runs, evaluation runs, flown missions). Their
 results go to DIR/runs/ one file per run as it finishes, and DIR/NAME.json (parameters, per-run
@@ -103,8 +104,14 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--set", action="append", metavar="KEY=VALUE", help="change one parameter of the preset")
     ap.add_argument("--workers", type=int, default=1, help="local processes (1: in this process)")
     ap.add_argument("--ray", metavar="auto|ADDRESS", help="run on a Ray cluster (auto: the running one)")
+    ap.add_argument("--report", action="store_true", help="rewrite docs/RESULTS.md's experiment sections")
     args = ap.parse_args(argv)
     args.argv = argv
+    if args.report:
+        from tools.exp.report import update
+
+        update(ROOT / "docs/RESULTS.md", EXPERIMENTS, ROOT / "results/experiments", "../results/experiments")
+        return {}
     if args.list or args.experiment is None:
         for name, module in EXPERIMENTS.items():
             print(f"{name}: {module.TITLE}\n  full: {json.dumps(module.PRESETS['full'])}")
