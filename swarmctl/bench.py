@@ -19,6 +19,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from swarmctl.bounds import real, whole, writable_file
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -228,17 +229,15 @@ def format_figures(results: dict) -> str:
 
 
 @click.command("bench")
-@click.option("--seconds", type=float, default=2.0, show_default=True, help="Time per measurement.")
-@click.option("--threads", type=int, default=1, show_default=True, help="Torch and onnxruntime CPU threads.")
+@click.option("--seconds", type=real(0, 600, above=True), default=2.0, show_default=True, help="Time per measurement.")
+@click.option("--threads", type=whole(1, 256), default=1, show_default=True, help="Torch and onnxruntime CPU threads.")
 @click.option("--no-train", is_flag=True, help="Leave out the training throughput (about 10 s).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the figures here.")
 def bench_command(seconds, threads, no_train, json_path):
     """Measure the simulator (batch 1 and 256), decision times (DDQL against the network's FLOP limit,
     LA(4)) and training throughput against its FLOP ceiling, in one run."""
-    from swarmctl.cli_options import require
-
-    require(threads >= 1, f"--threads {threads} must be >= 1")
-    require(seconds > 0, f"--seconds {seconds} must be > 0")
+    if json_path is not None:
+        writable_file(json_path, "--json")
     results = run_bench(seconds, threads, train=not no_train)
     click.echo(format_figures(results))
     if json_path is not None:

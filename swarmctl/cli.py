@@ -36,12 +36,24 @@ for command in (
     cli.add_command(command)
 
 
+def one_line(message: str) -> str:
+    """A message as the single line the CLI prints."""
+    return " ".join(message.split())
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning bad input into one line on stderr and exit status 2."""
     try:
         result = cli.main(args=argv, prog_name="swarmctl", standalone_mode=False)
     except InputError as exc:
-        click.echo(f"swarmctl: error: {exc}", err=True)
+        click.echo(f"swarmctl: error: {one_line(str(exc))}", err=True)
+        return EXIT_BAD_INPUT
+    except click.exceptions.NoArgsIsHelpError as exc:  # `swarmctl` alone: the help
+        exc.show()
+        return exc.exit_code
+    except click.UsageError as exc:  # a bad option or argument: click's message, the help to read
+        where = exc.ctx.command_path if exc.ctx is not None else "swarmctl"
+        click.echo(f"swarmctl: error: {one_line(exc.format_message()).rstrip('.')}; see '{where} --help'", err=True)
         return EXIT_BAD_INPUT
     except (click.exceptions.Abort, KeyboardInterrupt):
         click.echo("swarmctl: interrupted", err=True)
@@ -49,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     except click.exceptions.Exit as exc:
         return exc.exit_code
     except click.ClickException as exc:
-        exc.show()
+        click.echo(f"swarmctl: error: {one_line(exc.format_message())}", err=True)
         return exc.exit_code
     # without standalone mode click hands back a command's exit status (click.exceptions.Exit) here
     return result if isinstance(result, int) else 0

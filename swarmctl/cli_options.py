@@ -4,8 +4,18 @@ from __future__ import annotations
 
 import click
 
+from swarmctl.bounds import real, require_memory, whole
 from swarmctl.errors import InputError
-from swarmctl.world.config import CHANNELS, SCENARIOS, WorldConfig
+from swarmctl.world.config import (
+    CHANNELS,
+    MAX_CELL_SIZE,
+    MAX_FOV,
+    MAX_MAP,
+    MAX_UAVS,
+    MAX_WINDOW,
+    SCENARIOS,
+    WorldConfig,
+)
 
 
 def world_options(func):
@@ -20,16 +30,24 @@ def world_options(func):
         ),
         click.option(
             "--clusters",
-            type=int,
+            type=whole(1),
             default=1,
             show_default=True,
             help="Clusters of targets (cluster scenario; > 1 is multi-cluster).",
         ),
-        click.option("--map", "map_size", type=int, default=20, show_default=True, help="Map side M (cells)."),
-        click.option("--uavs", "--vehicles", "uavs", type=int, default=2, show_default=True, help="Vehicles U."),
-        click.option("--targets", type=int, default=4, show_default=True, help="Targets K."),
         click.option(
-            "--obstacles", type=float, default=0.0, show_default=True, help="Obstacle coverage fraction eta (0 .. 0.4)."
+            "--map", "map_size", type=whole(1, MAX_MAP), default=20, show_default=True, help="Map side M (cells)."
+        ),
+        click.option(
+            "--uavs", "--vehicles", "uavs", type=whole(1, MAX_UAVS), default=2, show_default=True, help="Vehicles U."
+        ),
+        click.option("--targets", type=whole(1), default=4, show_default=True, help="Targets K."),
+        click.option(
+            "--obstacles",
+            type=real(0, 0.4),
+            default=0.0,
+            show_default=True,
+            help="Obstacle coverage fraction eta (0 .. 0.4).",
         ),
         click.option(
             "--channel",
@@ -39,13 +57,25 @@ def world_options(func):
             help="Knowledge sharing: ideal, none, model (distance-based loss) or fixed (--loss).",
         ),
         click.option(
-            "--loss", type=float, default=0.0, show_default=True, help="Packet-loss probability for --channel fixed."
+            "--loss",
+            type=real(0, 1),
+            default=0.0,
+            show_default=True,
+            help="Packet-loss probability for --channel fixed.",
         ),
         click.option(
-            "--cell-size", type=float, default=10.0, show_default=True, help="Metres per cell (channel model)."
+            "--cell-size",
+            type=real(0, MAX_CELL_SIZE, above=True),
+            default=10.0,
+            show_default=True,
+            help="Metres per cell (channel model).",
         ),
-        click.option("--fov", type=float, default=3.0, show_default=True, help="Sensing radius zeta (cells)."),
-        click.option("--window", type=int, default=20, show_default=True, help="Observation window F."),
+        click.option(
+            "--fov", type=real(0, MAX_FOV), default=3.0, show_default=True, help="Sensing radius zeta (cells)."
+        ),
+        click.option(
+            "--window", type=whole(1, MAX_WINDOW), default=20, show_default=True, help="Observation window F."
+        ),
         click.option(
             "--guard/--no-guard",
             default=False,
@@ -88,5 +118,18 @@ def world_config(kwargs: dict) -> WorldConfig:
 
 
 def require(condition: bool, message: str) -> None:
+    """Raise InputError(message) unless the condition holds."""
     if not condition:
         raise InputError(message)
+
+
+def require_world_memory(cfg: WorldConfig, batch: int, what: str, cells: int | None = None, extra: int = 0) -> None:
+    """Refuse, before any array exists, `batch` episodes of `cfg` (plus `extra` bytes) that would not fit
+    in memory (swarmctl.world.env.planned_bytes)."""
+    from swarmctl.world.env import planned_bytes
+
+    require_memory(
+        planned_bytes(cfg, batch, cells) + extra,
+        what,
+        "use a smaller --map, fewer --uavs or a smaller --fov or --window",
+    )

@@ -36,11 +36,13 @@ def small_mission(tmp_path: Path, saved_grid: GeoGrid | None = None, **mission: 
     return path
 
 
-def fly(plan: Any, folder: Path, timeout: float = 150.0, during: Any = None) -> tuple[Controller, str]:
+def fly(
+    plan: Any, folder: Path, timeout: float = 150.0, during: Any = None, view: Any = None
+) -> tuple[Controller, str]:
     """Run a Controller on a fresh loop (with an overall timeout); `during(controller)` is a coroutine
-    run alongside (fault injection). The recording is closed whatever happens."""
+    run alongside (fault injection), `view` its live view. The recording is closed whatever happens."""
     rec = Recorder(folder)
-    controller = Controller(plan, rec)
+    controller = Controller(plan, rec, view=view)
 
     async def main() -> str:
         task = asyncio.ensure_future(controller.run())

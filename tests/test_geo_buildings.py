@@ -10,6 +10,7 @@ from swarmctl.geo.areas import Area
 from swarmctl.geo.buildings import (
     METRES_PER_LEVEL,
     BuildingRule,
+    HeightError,
     building_height,
     load_buildings,
     parse_height,
@@ -34,18 +35,39 @@ SQUARE_60 = shapely.box(0, 0, 60, 60)
         ("150'", 45.72),
         ("12'6\"", 3.81),
         ("12.13 m", 12.13),
+        ("1,000 ft", 304.8),
+        ("1,250.5 feet", 381.1524),
+        ("12 levels", 48.0),
+        ("150 ft.", 45.72),
         (None, None),
         ("", None),
-        ("tall", None),
+        ("unknown", None),
         ("0", None),
         (-3, None),
-        (True, None),
-        ([40], None),
     ],
 )
 def test_parse_height(value, metres):
     got = parse_height(value)
     assert got == (None if metres is None else pytest.approx(metres, abs=1e-9))
+
+
+@pytest.mark.parametrize(
+    "value, reason",
+    [
+        ("tall", "not a height"),
+        ("12 furlongs", "not a height"),
+        ("3 m 6 in", "inches follow feet"),
+        (True, "not a height"),
+        ([40], "not a height"),
+        ("nan", "not a height"),
+        (float("nan"), "not a finite number"),
+        (float("inf"), "not a finite number"),
+        ("5,000 m", "taller than any building"),
+    ],
+)
+def test_unreadable_heights_are_refused_with_the_value(value, reason):
+    with pytest.raises(HeightError, match=reason):
+        parse_height(value)
 
 
 @pytest.mark.parametrize(
@@ -63,6 +85,12 @@ def test_parse_height(value, metres):
 )
 def test_parse_levels(value, levels):
     assert parse_levels(value) == levels
+
+
+@pytest.mark.parametrize("value", ["many", "1,000", "ten"])
+def test_unreadable_level_counts_are_refused(value):
+    with pytest.raises(HeightError, match=repr(value)):
+        parse_levels(value)
 
 
 def test_height_wins_over_levels_and_levels_use_four_metres():

@@ -178,15 +178,17 @@ def test_bad_area_files(tmp_path, capsys, case):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--cell", "0"], "--cell 0: the cell size must be > 0"),
-        (["--cell", "-5"], "--cell -5: the cell size must be > 0"),
+        (["--cell", "0"], "'--cell': 0.0 is not in the range 0.01<=x<=10000"),
+        (["--cell", "-5"], "'--cell': -5.0 is not in the range"),
+        (["--cell", "nan"], "'--cell': 'nan' is not a finite number"),
         (
             ["--cell", "0.1", "--max-cells", "1000"],
             "area.geojson: the grid would be 200\\d x 100\\d = 2,00\\d,\\d+ cells of 0.1 m.*--max-cells",
         ),
         (["--max-cells", "100"], "20 x 10 = 200 cells of 10 m.*over the limit of 100"),
-        (["--altitude", "0"], "--altitude 0"),
-        (["--margin", "-1"], "--margin -1"),
+        (["--altitude", "0"], "'--altitude': 0.0 is not in the range"),
+        (["--margin", "-1"], "'--margin': -1.0 is not in the range"),
+        (["--margin", "40"], "--margin 40: the safety margin must be below --altitude"),
     ],
 )
 def test_bad_numbers(tmp_path, area_file, capsys, args, message):

@@ -183,3 +183,33 @@ def test_value_channel_and_observation_agree_with_the_simulator(channel):
         assert obs.shape == (3, 8, 8)
         assert np.array_equal(obs[:2], sim_obs[v, :2])
         assert np.abs(obs[2] - sim_obs[v, 2]).max() <= 0.5 / 255 + 1e-6
+
+
+def test_a_target_learnt_later_raises_the_value_of_cells_explored_before_it():
+    """Cells explored from the vehicle's position alone carry phi 0; the value channel computes phi on
+    explored cells from the targets known, with the settings' sigma2 and cut-off, as the simulator's
+    value map does, and leaves unexplored cells at 1."""
+    from swarmctl.world.scenario import value_map
+
+    k = Knowledge(12, 10, vehicle_id=0)
+    k.set_position(1, (3, 3))
+    cells = disc_cells((3, 3), 12, 10, 3.0)
+    k.sense(cells, np.zeros(len(cells)), np.zeros(len(cells), bool))  # no detector: nothing reported
+    before = k.value_channel()
+    assert (before[k.explored] == 0).all() and (before[~k.explored] == 1).all()
+    k.merge(Detection(1, 2, (5, 4), False, np.array([[5, 4]])))  # a peer found a target near them
+    after = k.value_channel(sigma2=2.0)
+    expected = value_map(np.array([[5, 4]]), 12, 10, sigma2=2.0)
+    assert np.allclose(after[k.explored], expected[k.explored], atol=0.5 / 255, rtol=0)  # quantised as phi is
+    assert (after[~k.explored] == 1).all()
+    # where a detector reported the true phi, the known targets' value changes nothing (bit for bit)
+    d = Knowledge(12, 10, vehicle_id=0)
+    d.set_position(1, (3, 3))
+    d.sense(cells, expected[cells[:, 0], cells[:, 1]], np.zeros(len(cells), bool))
+    reported = d.value_channel(sigma2=2.0)
+    d.add_targets([(5, 4)], 2)
+    assert np.array_equal(d.value_channel(sigma2=2.0), reported)
+    assert after[4, 4] > 0.7 and after[0, 3] == 0.0  # near the target raised, far from it still 0
+    # a reported phi above the known targets' value is kept (a detector's phi near unseen targets)
+    k.sense(np.array([[0, 3]]), np.array([0.5]), np.array([False]))
+    assert abs(k.value_channel(sigma2=2.0)[0, 3] - 0.5) <= 1 / 255

@@ -123,10 +123,15 @@ def test_a_personality_is_built_on_its_firmwares_description(name):
 
 @pytest.mark.parametrize("name", AUTOPILOT_NAMES)
 def test_the_mock_plays_the_personality_it_is_given(name):
-    mock = MockAutopilot(autopilot=name)
+    mock = MockAutopilot(autopilot=name, speed=7.0, climb_rate=3.0)
     p = PERSONALITIES[name]
     assert mock.personality is p and mock.autopilot == name
-    assert mock.mode_name == p.boot_mode and mock.params == dict(p.params) and mock.params is not p.params
+    # the parameters: the personality's defaults, those that are its speeds saying what the mock flies at
+    speeds = {n: getattr(mock, attribute) / scale for n, (attribute, scale) in p.physics_params.items()}
+    assert mock.params == {**p.params, **speeds} and mock.params is not p.params
+    limits = p.autopilot.flight_limits(mock.params)
+    assert (limits.speed, limits.climb) == (7.0, 3.0) and limits.descent == mock.descent_rate
+    assert mock.mode_name == p.boot_mode
     assert mock.intervals == dict(p.default_streams)
     mock.mav = MAV.MAVLink(None, srcSystem=1, srcComponent=1)
     hb = mock._heartbeat()

@@ -81,7 +81,8 @@ def test_demo_on_a_small_mission_writes_the_recording_and_the_picture(tmp_path, 
     marks = ET.parse(out / "targets.kml").getroot().findall(".//k:Placemark/k:Point/k:coordinates", ns)
     in_kml = sorted((float(c.text.split(",")[1]), float(c.text.split(",")[0])) for c in marks)
     assert np.allclose(in_kml, want, atol=1e-6, rtol=0)
-    assert summary["knowledge_radio"]["forwarded"] > 0
+    bus = summary["knowledge_bus"]  # the agents shared in the demo's process
+    assert bus["channel"] == "ideal" and bus["delivered"] > 0 and bus["lost"] == 0
     assert "complete: 3 targets found" in capsys.readouterr().out
 
 
@@ -156,7 +157,7 @@ def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_withou
 
 
 BAD = [
-    (["demo", "--uavs", "0"], "--uavs 0"),
+    (["demo", "--uavs", "0"], "'--uavs'"),
     (["demo", "--policy", "oracle"], "oracle"),
     (["demo", "--policy", "ddql:/nonexistent/model.pt"], "model.pt"),
     (["demo", "--speedup", "-1"], "--speedup"),
@@ -190,14 +191,49 @@ def test_fly_prints_the_plan_and_does_not_fly_without_confirmation(tmp_path, mon
     out = capsys.readouterr()
     assert "grid 10 x 10 cells of 10 m" in out.out and "vehicle a: sysid 1" in out.out
     assert "not flown" in out.err
+    # no detector, no [knowledge] section: said before take-off, and no address is made up
+    assert "sensing: no detector, so this is a coverage search" in out.out and ", no detector" in out.out
+    assert "knowledge: shared in this process (no hub to run)" in out.out and "14600" not in out.out
+
+
+def test_fly_names_each_vehicles_detector_and_a_channel_it_does_not_use(tmp_path, monkeypatch, capsys):
+    path = small_mission(tmp_path)
+    path.write_text(
+        path.read_text()
+        + 'detector = "mavlink"\n[[vehicles]]\nname = "b"\nconnection = "udpin:127.0.0.1:14552"\nsysid = 2\n'
+        + '[knowledge]\nchannel = "udpout:127.0.0.1:14600"\n'
+    )
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\n"))
+    assert main(["fly", str(path)]) == 1
+    out = capsys.readouterr().out
+    assert (
+        "vehicle a: sysid 1, autopilot as its heartbeat says, udpin:127.0.0.1:14551, detector on its MAVLink link"
+        in out
+    )
+    assert "1 of 2 vehicles have a detector for the targets (the others search by coverage only)" in out
+    assert "[knowledge] channel udpout:127.0.0.1:14600 is for swarmctl agent, fly does not use it" in out
+
+
+def test_an_agent_without_a_knowledge_channel_is_refused_with_exit_2(tmp_path, capsys):
+    path = small_mission(tmp_path)
+    assert main(["agent", str(path), "--vehicle", "a", "--yes"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert err.endswith(
+        f"{path}: [knowledge] channel is missing, and agents in separate processes (swarmctl agent) share knowledge "
+        'only through it; add [knowledge] channel = "udpout:HOST:PORT" (a MAVLink router or telemetry mesh that '
+        "forwards TUNNEL messages to every vehicle's agent), or fly every vehicle from one computer with swarmctl fly"
+    )
 
 
 def test_a_vehicle_may_name_its_detector_socket(tmp_path):
+    assert make_plan(load_spec(small_mission(tmp_path))).detectors == {}  # none: a coverage search
     path = small_mission(tmp_path)
     path.write_text(path.read_text() + 'detector = "udp:127.0.0.1:14650"\n')
     plan = make_plan(load_spec(path))
     assert plan.detectors == {0: Endpoint("udpin", "127.0.0.1", 14650)}
     assert make_plan(load_spec(path), detector="udp:127.0.0.1:14700").detectors[0].port == 14700  # agent --detector
+    assert make_plan(load_spec(path), detector="mavlink").detectors == {0: "mavlink"}  # on its own link
     with pytest.raises(InputError, match=r"--detector 'tcp:x'"):
         make_plan(load_spec(path), detector="tcp:x")
     path.write_text(path.read_text().replace("udp:127.0.0.1:14650", "tcp:x"))

@@ -44,7 +44,10 @@ def test_three_ardupilot_and_one_px4_find_and_hover_on_distinct_targets(tmp_path
     assert len(set(cells)) == 4 and set(cells) <= hidden  # distinct targets, the hidden ones
     assert set(mock_cells) == set(cells) and all(armed)  # the vehicles really are there, in the air
     assert {tuple(t["cell"]) for t in summary["targets_found"]} == hidden
-    assert summary["steps"] > 0 and all(v["steps"] > 0 and v["distance_m"] > 0 for v in ends.values())
+    assert summary["steps"] > 0 and all(v["steps"] > 0 for v in ends.values())
+    # the whole flight, 3-D: the climb to the mission's altitude counts (from 0.5 m up) and the search
+    climb = plan.spec.mission.altitude - 0.5
+    assert all(v["distance_3d_m"] > climb + 10 for v in ends.values()), [v["distance_3d_m"] for v in ends.values()]
     assert summary["messages"]["knowledge_sent"] > 0 and summary["messages"]["mavlink_received"] > 0
     for key in ("time_s", "search_time_s", "messages", "overhead_ms", "policy", "outcome"):
         assert key in summary
@@ -155,7 +158,7 @@ def test_onboard_mode_two_processes_share_only_through_the_knowledge_channel(tmp
 
     grid = small_grid()
     with SimSwarm(grid, uavs=3, seed=7, speedup=30.0) as swarm:
-        plans = [swarm.plan("frontier", end_action="hover", time_limit=120.0) for _ in range(2)]
+        plans = [swarm.plan("frontier", end_action="hover", time_limit=120.0, radio=True) for _ in range(2)]
         plans[0].only, plans[1].only = [0, 1], [2]
         recs = [Recorder(tmp_path / f"p{i}") for i in range(2)]
         controllers = [Controller(p, r) for p, r in zip(plans, recs)]

@@ -16,7 +16,7 @@ from swarmctl.policy.checkpoint import save_checkpoint
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.sim.swarm import SimSwarm
 from tests.geo_helpers import feature, to_lonlat, write_geojson
-from tests.mission_support import small_grid, small_mission
+from tests.mission_support import our_threads, small_grid, small_mission
 
 
 def plan_of(tmp_path, grid=None, **mission):
@@ -107,10 +107,25 @@ def test_a_models_options_are_kept_and_a_bad_one_is_named(tmp_path):
 
 def test_onboard_mode_keeps_the_named_vehicles(tmp_path):
     path = small_mission(tmp_path)
-    path.write_text(path.read_text() + '[[vehicles]]\nname = "b"\nconnection = "udpin:127.0.0.1:14552"\nsysid = 2\n')
-    assert make_plan(load_spec(path), only=["b"]).only == [1]
+    text = path.read_text() + '[[vehicles]]\nname = "b"\nconnection = "udpin:127.0.0.1:14552"\nsysid = 2\n'
+    path.write_text(text + '[knowledge]\nchannel = "udpout:127.0.0.1:14600"\n')
+    plan = make_plan(load_spec(path), only=["b"])
+    assert plan.only == [1] and plan.onboard and not make_plan(load_spec(path)).onboard
     with pytest.raises(InputError, match="--vehicle 'z' is not in .*; use one of a, b"):
         make_plan(load_spec(path), only=["z"], mission_file=path)
+
+
+def test_onboard_mode_without_a_knowledge_channel_is_refused_with_the_fix(tmp_path):
+    """Agents in separate processes share only through the channel; one process flying every vehicle
+    shares in memory and needs none."""
+    path = small_mission(tmp_path)
+    path.write_text(path.read_text() + '[[vehicles]]\nname = "b"\nconnection = "udpin:127.0.0.1:14552"\nsysid = 2\n')
+    with pytest.raises(InputError) as refused:
+        make_plan(load_spec(path), only=["b"], mission_file=path)
+    text = str(refused.value)
+    assert text.startswith(f"{path}: [knowledge] channel is missing") and "\n" not in text
+    assert 'add [knowledge] channel = "udpout:HOST:PORT"' in text and "swarmctl fly" in text
+    assert make_plan(load_spec(path)).spec.knowledge.channel is None  # ground mode: fine without
 
 
 def _vehicles(n: int) -> list[VehicleSpec]:
@@ -139,11 +154,14 @@ def test_the_demo_flies_its_own_settings_over_a_mission_files(tmp_path):
     with SimSwarm(small_grid(), uavs=2, seed=0, mission_id=base.mission.id) as swarm:
         plan = swarm.plan("frontier", base=base, time_limit=45.0, mission_file=path)
         default = swarm.plan("random", grid=tmp_path / "grid.npz")
+        onboard = swarm.plan("random", radio=True)  # the loopback radio as the channel of separate processes
+        assert onboard.spec.knowledge.channel.port == swarm.radio.address[1]
+    assert not our_threads()  # the radio stopped with the swarm
     spec = plan.spec
     assert (spec.mission.name, spec.mission.id, spec.battery.return_below) == ("small", 42, 25)  # the file's
     assert spec.timing.step_period == DEMO_SETTINGS["step_period"] and spec.flight.telemetry_hz == 20.0  # the demo's
     assert spec.timing.time_limit == 45.0 and plan.mission_file == path  # the caller's
-    assert [v.name for v in spec.vehicles] == ["uav1", "uav2"] and spec.knowledge.channel.port == swarm.radio.address[1]
+    assert [v.name for v in spec.vehicles] == ["uav1", "uav2"] and spec.knowledge.channel is None  # the bus
     assert default.spec.mission.name == "demo" and default.spec.timing.time_limit == DEMO_SETTINGS["time_limit"]
     assert default.spec.battery.return_below == 15 and default.spec.mission.altitude == 40.0
     assert default.spec.mission.grid == tmp_path / "grid.npz"  # copied into the recording

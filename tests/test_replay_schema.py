@@ -28,6 +28,7 @@ KINDS = {
     "bool": st.booleans(),
     "cell": _cell,
     "cells": st.lists(_cell, max_size=4),
+    "xy": st.lists(st.integers(-300, 300), min_size=2, max_size=2),
     "latlon": _latlon,
     "latlons": st.lists(_latlon, max_size=4),
     "numbers": st.lists(_number, max_size=5),
@@ -150,3 +151,10 @@ def test_the_schema_names_every_state_the_controller_records():
 
     entered = {s for targets in TRANSITIONS.values() for s in targets}  # every state an agent can move to
     assert set(AGENT_STATES) == {s.value for s in entered} == {s.value for s in State} - {"new"}
+
+
+def test_a_refused_move_off_the_grid_keeps_its_proposed_cell():
+    line = {"t": 1.0, "event": "refused", "vehicle": "a", "step": 1, "cell": [0, 0], "proposed": [-1, 0]}
+    assert check_event({**line, "reason": "outside"}, strict=True) == "refused"
+    with pytest.raises(EventError, match="proposed"):
+        check_event({**line, "proposed": [-1], "reason": "outside"})

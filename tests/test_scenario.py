@@ -100,6 +100,14 @@ def test_value_map_values_and_cutoff():
     assert two[2, 1] == pytest.approx(np.exp(-0.5))  # max over targets, not a sum
 
 
+def test_value_map_of_no_targets_is_zero_everywhere():
+    """A search with nothing hidden (the simulated detector used to crash on it: zero-size array)."""
+    none = value_map(np.zeros((0, 2), dtype=np.int64), 7, 5)
+    assert none.shape == (7, 5) and none.dtype == np.float32 and not none.any()
+    batched = value_map(np.zeros((3, 0, 2), dtype=np.int64), 4, 6)
+    assert batched.shape == (3, 4, 6) and not batched.any()
+
+
 def test_fov_disc_has_29_cells_for_radius_3():
     off = fov_offsets(3.0)
     assert len(off) == 29

@@ -1,11 +1,13 @@
 """Controller overhead per decision step with 3, 12 and 50 mock vehicles at the Chicago Loop.
 
-For each swarm size: start the mock vehicles (in this process, over loopback UDP), fly a search for
---search seconds with the given policy, and report per decision round the policy time, the whole
-round, and the controller's own part (the round minus the time spent waiting for vehicles to reach
-their cells and for detector reports). The mocks run in a child process (or, with --same-process,
-in threads next to the controller, where they compete with it for the interpreter lock); on a small
-machine they still compete for the CPU, so the numbers are upper bounds.
+For each swarm size: start the mock vehicles (over loopback UDP), fly a search for --search seconds
+with the given policy in ground mode (one controller flies every vehicle; the agents share knowledge
+on the in-process bus, swarmctl.knowledge.bus, and write their TUNNEL frames on their own vehicle's
+link), recording it as fly and demo do (the running summary.json included), and report per decision
+round the policy time, the whole round, and the controller's own part (the round minus the time spent
+waiting for vehicles to reach their cells and for detector reports). The mocks run in a child process
+(or, with --same-process, in threads next to the controller, where they compete with it for the
+interpreter lock); on a small machine they still compete for the CPU, so the numbers are upper bounds.
 
     python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--out results/]
 """
@@ -28,14 +30,15 @@ sys.path.insert(0, str(ROOT))
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
+from swarmctl.mission.service import keep_summary  # noqa: E402
 from swarmctl.sim.swarm import SimSwarm, sim_plan  # noqa: E402
 
 
 def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:
-    """Child process: the mock vehicles and the radio, until the parent says stop."""
+    """Child process: the mock vehicles, until the parent says stop."""
     grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
     with SimSwarm(grid, uavs=size, seed=seed, speedup=speedup) as swarm:
-        pipe.send((swarm.specs, swarm.radio.address))
+        pipe.send(swarm.specs)
         pipe.recv()
 
 
@@ -53,13 +56,22 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             parent, child_end = mp.Pipe()
             child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end))
             child.start()
-            specs, radio = parent.recv()
-            plan = sim_plan(grid, specs, radio, policy, seed=seed, name="overhead", **kw)
+            specs = parent.recv()
+            plan = sim_plan(grid, specs, policy, seed=seed, name="overhead", **kw)
         rec = Recorder(tmp)
         controller = Controller(plan, rec)
+
+        async def fly() -> str:  # with the running summary.json, as fly and demo keep it
+            summaries = asyncio.ensure_future(keep_summary(controller, rec))
+            try:
+                return await controller.run()
+            finally:
+                summaries.cancel()
+                await asyncio.gather(summaries, return_exceptions=True)
+
         started = time.monotonic()
         try:
-            outcome = asyncio.run(controller.run())
+            outcome = asyncio.run(fly())
         finally:
             rec.close()
             if same_process:

@@ -24,6 +24,7 @@ from pathlib import Path
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
 
+from swarmctl.bounds import INPUT_MAX_BYTES, read_limited
 from swarmctl.errors import InputError
 from swarmctl.geo.readers import (
     geojson_polygons,
@@ -112,6 +113,12 @@ def build_area(
             "(GeoJSON), a <Polygon> (KML) or an inclusion geofence or survey polygon (.plan)"
         )
     geometry = polygonal_part(shapely.union_all(polys))
+    west, _, east, _ = geometry.bounds
+    if east - west > 180.0:
+        raise InputError(
+            f"{path}: the area spans longitudes {west:g} to {east:g}: it lies across the antimeridian (or round "
+            "the Earth), which swarmctl cannot grid; plan the parts east and west of 180 degrees as two areas"
+        )
     nofly = repair(nofly_parts, path, warnings)
     return Area(geometry, nofly, list(circles or []), path.name, dict(sources or {}), warnings)
 
@@ -171,18 +178,16 @@ def _kml_ring(elem: ET.Element, path: Path, where: str):
         raise InputError(
             f"{path}: {where}: <coordinates> must be 'lon,lat[,alt]' tuples separated by spaces; fix the KML"
         ) from None
-    return lonlat_ring(points, path, where)
+    return lonlat_ring(points, path, where, fmt="KML")
 
 
 def read_kml(path: Path) -> Area:
-    """Read an Area from a KML file: every <Polygon>, with outer and inner boundaries."""
+    """Read an Area from a KML file (at most INPUT_MAX_BYTES): every <Polygon>, with outer and inner boundaries."""
     require_file(path)
     try:
-        root = ET.parse(path).getroot()
+        root = ET.fromstring(read_limited(path, "KML file", INPUT_MAX_BYTES))
     except ET.ParseError as exc:
         raise InputError(f"{path}: not valid KML/XML ({exc}); fix the file or export it again as KML") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); check the file's permissions") from None
     placemarks = [e for e in root.iter() if _local(e.tag) == "Placemark"] or [root]
     area, nofly = [], []
     for pi, pm in enumerate(placemarks):

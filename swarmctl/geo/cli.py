@@ -6,8 +6,16 @@ from pathlib import Path
 
 import click
 
+from swarmctl.bounds import real, whole, writable_folder
 from swarmctl.errors import InputError
-from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MARGIN, DEFAULT_MAX_CELLS, UNKNOWN_RULES
+from swarmctl.geo.defaults import (
+    DEFAULT_ALTITUDE,
+    DEFAULT_CELL,
+    DEFAULT_MARGIN,
+    DEFAULT_MAX_CELLS,
+    MAX_GRID_CELLS,
+    UNKNOWN_RULES,
+)
 
 # shapely, pyproj, scipy and matplotlib load inside the command, so other commands start fast.
 
@@ -52,17 +60,17 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
     default=None,
     help="GeoJSON building footprints with height or levels.",
 )
-@click.option("--cell", type=float, default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
+@click.option("--cell", type=real(0.01, 10_000), default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
 @click.option(
     "--altitude",
-    type=float,
+    type=real(0.01, 10_000),
     default=DEFAULT_ALTITUDE,
     show_default=True,
     help="Flight altitude in metres relative to home.",
 )
 @click.option(
     "--margin",
-    type=float,
+    type=real(0, 10_000),
     default=DEFAULT_MARGIN,
     show_default=True,
     help="Safety margin in metres: buildings >= altitude - margin are obstacles.",
@@ -77,7 +85,7 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
 )
 @click.option(
     "--max-cells",
-    type=int,
+    type=whole(1, MAX_GRID_CELLS),
     default=DEFAULT_MAX_CELLS,
     show_default=True,
     help="Refuse grids with more cells than this.",
@@ -99,14 +107,9 @@ def plan_command(
     Writes OUT/grid.npz (the grid the controller loads), OUT/grid.geojson (cells with a blocked
     flag), OUT/area.plan (QGroundControl geofence) and OUT/preview.png.
     """
-    if not cell > 0:
-        raise InputError(f"--cell {cell:g}: the cell size must be > 0 metres, e.g. --cell 10")
-    if not altitude > 0:
-        raise InputError(f"--altitude {altitude:g}: the flight altitude must be > 0 metres, e.g. --altitude 40")
-    if not 0 <= margin < altitude:
-        raise InputError(f"--margin {margin:g}: the safety margin must be >= 0 and below --altitude ({altitude:g} m)")
-    if max_cells < 1:
-        raise InputError(f"--max-cells {max_cells}: must be at least 1")
+    if not margin < altitude:
+        raise InputError(f"--margin {margin:g}: the safety margin must be below --altitude ({altitude:g} m)")
+    writable_folder(out_dir, "--out")
     from swarmctl.geo.areas import load_area
     from swarmctl.geo.buildings import BuildingRule, load_buildings
     from swarmctl.geo.export import write_grid_geojson

@@ -30,7 +30,15 @@ from shapely import affinity
 from swarmctl.errors import InputError
 from swarmctl.geo.areas import Area
 from swarmctl.geo.buildings import BuildingRule, BuildingSet
-from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL, DEFAULT_MAX_CELLS, METRES_PER_LEVEL
+from swarmctl.geo.defaults import (
+    DEFAULT_ALTITUDE,
+    DEFAULT_CELL,
+    DEFAULT_MAX_CELLS,
+    GRID_MAX_BYTES,
+    MAX_GRID_CELLS,
+    MAX_GRID_SIDE,
+    METRES_PER_LEVEL,
+)
 from swarmctl.geo.projection import LocalProjection
 from swarmctl.world.paths import largest_free_region
 
@@ -183,11 +191,14 @@ class GeoGrid:
         if not path.is_file():
             raise InputError(f"{path}: grid file not found; create it with `swarmctl plan AREA --out DIR`")
         fix = "write it again with `swarmctl plan`"
+        if path.stat().st_size > GRID_MAX_BYTES:
+            raise InputError(f"{path}: over {GRID_MAX_BYTES // 2**20} MiB, too large for a grid file; {fix}")
         try:
+            _check_members(path, fix)
             with np.load(path, allow_pickle=False) as data:
                 blocked = np.asarray(data["blocked"])
                 meta = json.loads(str(data["meta"]))
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        except (OSError, ValueError, KeyError, EOFError, RecursionError, zipfile.BadZipFile, zlib.error) as exc:
             raise InputError(f"{path}: not a swarmctl grid file ({type(exc).__name__}); {fix}") from None
         if not isinstance(meta, dict) or meta.get("format") != GRID_FORMAT:
             raise InputError(f"{path}: not a swarmctl grid file (format is not {GRID_FORMAT!r}); {fix}")
@@ -200,8 +211,16 @@ class GeoGrid:
             proj = str(meta["proj"])
         except (KeyError, TypeError, ValueError):
             raise InputError(f"{path}: grid file is missing or has a bad origin, size or projection; {fix}") from None
-        if len(origin) != 2 or not all(math.isfinite(v) for v in numbers) or numbers[1] <= 0:
-            raise InputError(f"{path}: grid file has a non-finite origin/rotation or a cell size <= 0; {fix}")
+        if len(origin) != 2 or not all(math.isfinite(v) for v in numbers):
+            raise InputError(f"{path}: grid file has a non-finite origin, rotation, cell size or altitude; {fix}")
+        for key, value, lo, hi in (
+            ("rotation_deg", numbers[0], -180.0, 180.0),
+            ("cell_size_m", numbers[1], 0.01, 10_000.0),
+            ("altitude_m", numbers[2], 0.01, 10_000.0),
+            ("origin", max(abs(v) for v in origin), 0.0, 1e8),
+        ):
+            if not lo <= value <= hi:
+                raise InputError(f"{path}: grid file's {key} {value:g} is outside {lo:g}..{hi:g}; {fix}")
         if blocked.dtype != bool or blocked.shape != shape or min(shape) < 1:
             raise InputError(f"{path}: grid mask is not a {shape[0]} x {shape[1]} bool array; {fix}")
         try:
@@ -221,6 +240,26 @@ class GeoGrid:
         except Exception as exc:  # pyproj.exceptions.CRSError and friends
             raise InputError(f"{path}: grid file has an unusable projection ({exc}); {fix}") from None
         return grid
+
+
+def _check_members(path: Path, fix: str) -> None:
+    """Refuse, before decompressing anything, a grid file whose mask is not a bool array of at most
+    MAX_GRID_CELLS cells (MAX_GRID_SIDE a side) or whose meta is over GRID_MAX_BYTES."""
+    with zipfile.ZipFile(path) as zf:
+        with zf.open("blocked.npy") as fh:
+            version = np.lib.format.read_magic(fh)
+            read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            shape, _, dtype = read(fh)
+        meta = zf.getinfo("meta.npy")
+    if dtype != np.dtype(bool) or len(shape) != 2:
+        raise InputError(f"{path}: grid mask is a {dtype} array of shape {shape}, not a 2-D bool array; {fix}")
+    if max(shape) > MAX_GRID_SIDE or shape[0] * shape[1] > MAX_GRID_CELLS:
+        raise InputError(
+            f"{path}: grid of {shape[0]} x {shape[1]} cells, over the limits of {MAX_GRID_SIDE:,} a side and "
+            f"{MAX_GRID_CELLS:,} in all; {fix}"
+        )
+    if meta.file_size > GRID_MAX_BYTES:
+        raise InputError(f"{path}: grid metadata of {meta.file_size:,} bytes is too large; {fix}")
 
 
 def grid_axes(outline_metres, rotate: bool) -> float:

@@ -1,5 +1,8 @@
 """QGroundControl .plan files (JSON, fileType "Plan", version 1) in and out.
 
+The versions are checked: the file's must be 1, its geoFence's and mission's 1 or 2 (what
+QGroundControl writes and reads); a version left out is taken as the current one.
+
 Reading (`read_plan`): geofence polygons with ``"inclusion": true`` and survey ComplexItem polygons
 make up the area (their union); geofence polygons with ``"inclusion": false`` are no-fly zones;
 geofence circles are no-fly zones when ``"inclusion": false`` and part of the area when true. Plans
@@ -27,6 +30,8 @@ from swarmctl.geo.readers import lonlat_ring, make_polygon, read_json
 
 CIRCLE_SEGMENTS = 32  # per quarter circle when a circle becomes a polygon
 MAX_RADIUS = 1e6  # metres
+PLAN_VERSION = 1  # the file version QGroundControl writes (and the only one it reads)
+PART_VERSIONS = (1, 2)  # the geoFence and mission versions QGroundControl reads
 
 
 def circle_polygon(circle: Circle) -> Polygon:
@@ -39,7 +44,7 @@ def circle_polygon(circle: Circle) -> Polygon:
 def _ring(coords: object, path: Path, where: str) -> np.ndarray:
     if not isinstance(coords, list):
         raise InputError(f'{path}: {where}: "polygon" must be a list of [lat, lon] positions; fix the plan')
-    return lonlat_ring(coords, path, where, lat_first=True)
+    return lonlat_ring(coords, path, where, lat_first=True, fmt="a QGroundControl plan")
 
 
 def _items(parent: dict, key: str, path: Path, where: str) -> list:
@@ -64,6 +69,17 @@ def read_plan(path: str | Path) -> Area:
     mission = obj.get("mission") or {}
     if not isinstance(fence, dict) or not isinstance(mission, dict):
         raise InputError(f'{path}: "geoFence" and "mission" must be JSON objects; fix the plan')
+    for where, part, known in (
+        ("", obj, (PLAN_VERSION,)),
+        ("geoFence ", fence, PART_VERSIONS),
+        ("mission ", mission, PART_VERSIONS),
+    ):
+        version = part.get("version", known[-1])  # hand-written plans may leave it out
+        if isinstance(version, bool) or version not in known:
+            raise InputError(
+                f"{path}: {where}version {version!r} is not one QGroundControl writes "
+                f"({' or '.join(map(str, known))}); save the plan again from QGroundControl"
+            )
     area: list[tuple[Polygon, str]] = []
     nofly: list[tuple[Polygon, str]] = []
     circles: list[Circle] = []
@@ -87,7 +103,7 @@ def read_plan(path: str | Path) -> Area:
             raise InputError(
                 f'{path}: {where}: needs "circle": {{"center": [lat, lon], "radius": metres}}; fix the plan'
             ) from None
-        lonlat_ring([[lat, lon]], path, where, lat_first=True)
+        lonlat_ring([[lat, lon]], path, where, lat_first=True, fmt="a QGroundControl plan")
         if not 0 < radius < MAX_RADIUS:
             raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0 and below 1000 km; fix the plan")
         circle = Circle(lat, lon, radius)

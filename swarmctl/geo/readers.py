@@ -14,7 +14,10 @@ import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Polygon
 
+from swarmctl.bounds import INPUT_MAX_BYTES, load_json
 from swarmctl.errors import InputError
+
+POLAR_LATITUDE = 85.0  # degrees: the local grid is not made for areas nearer a pole
 
 # `crs` members that mean WGS84 longitude/latitude (RFC 7946 / the 2008 GeoJSON spec).
 WGS84_CRS_NAMES = {
@@ -41,21 +44,11 @@ def require_file(path: Path) -> None:
         raise InputError(f"{path}: not a file; give the path of a GeoJSON, KML or .plan file")
 
 
-def read_json(path: Path, kind: str) -> object:
-    """Parse a JSON file; `kind` ("GeoJSON", "QGroundControl plan") is used in error messages."""
+def read_json(path: Path, kind: str, limit: int = INPUT_MAX_BYTES) -> object:
+    """Parse a JSON file of at most `limit` bytes (and MAX_JSON_DEPTH levels, swarmctl.bounds); `kind`
+    ("GeoJSON", "QGroundControl plan") is used in error messages."""
     require_file(path)
-    try:
-        with path.open(encoding="utf-8") as fh:
-            return json.load(fh)
-    except json.JSONDecodeError as exc:
-        raise InputError(
-            f"{path}: not valid JSON (line {exc.lineno}, column {exc.colno}: {exc.msg}); "
-            f"fix the file or export it again as {kind}"
-        ) from None
-    except UnicodeDecodeError:
-        raise InputError(f"{path}: not a UTF-8 text file; export the data as {kind}") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); check the file's permissions") from None
+    return load_json(path, kind, limit, f"fix the file or export it again as {kind}")
 
 
 def check_geojson_crs(obj: object, path: Path) -> None:
@@ -75,11 +68,13 @@ def check_geojson_crs(obj: object, path: Path) -> None:
     )
 
 
-def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False) -> np.ndarray:
+def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False, fmt: str = "GeoJSON") -> np.ndarray:
     """Check one ring's coordinates and return them as an (n, 2) float array of lon, lat.
 
-    `lat_first` is for QGroundControl plans, which store [lat, lon]. Extra values (altitude) are
-    dropped. Latitudes beyond +-90 are reported as swapped coordinates.
+    `lat_first` is for QGroundControl plans, which store [lat, lon]; `fmt` names the format in errors.
+    Extra values (altitude) are dropped. Latitudes beyond +-90, or within 5 degrees of a pole when the
+    swapped reading is an ordinary place, are reported as swapped coordinates; other polar rings, rings
+    round a pole and rings across the antimeridian are refused.
     """
     try:
         arr = np.array([[float(v) for v in pt[:2]] for pt in coords], dtype=float)  # type: ignore[union-attr]
@@ -92,19 +87,53 @@ def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False)
     if lat_first:
         arr = arr[:, ::-1]
     lon, lat = arr[:, 0], arr[:, 1]
-    if np.any(np.abs(lat) > 90):
-        order = "[lat, lon]" if lat_first else "[lon, lat] (RFC 7946)"
-        swapped = "[lon, lat]" if lat_first else "[lat, lon]"
+    stored, swapped = ("[lat, lon]", "[lon, lat]") if lat_first else ("[lon, lat]", "[lat, lon]")
+    order = f"{fmt} stores {stored}" + (" (RFC 7946)" if fmt == "GeoJSON" else "")
+    worst = float(lat[np.argmax(np.abs(lat))])
+    if abs(worst) > 90:
         raise InputError(
-            f"{path}: {where}: latitude {lat[np.argmax(np.abs(lat))]:g} is beyond +-90, so the "
-            f"coordinates look like {swapped}; this format stores {order}: swap the two values"
+            f"{path}: {where}: latitude {worst:g} is beyond +-90, so the coordinates look like {swapped}; "
+            f"{order}: swap the two values"
         )
     if np.any(np.abs(lon) > 180):
         raise InputError(
             f"{path}: {where}: longitude {lon[np.argmax(np.abs(lon))]:g} is beyond +-180; "
             "coordinates must be WGS84 degrees"
         )
+    if abs(worst) > POLAR_LATITUDE:
+        if np.all(np.abs(lon) <= POLAR_LATITUDE):  # read the other way round, it is an ordinary place
+            raise InputError(
+                f"{path}: {where}: latitude {worst:g} is within {90 - POLAR_LATITUDE:g} degrees of a pole, so the "
+                f"coordinates look like {swapped}; {order}: swap the two values"
+            )
+        raise InputError(
+            f"{path}: {where}: latitude {worst:g} is within {90 - POLAR_LATITUDE:g} degrees of a pole, where "
+            "swarmctl's local grid does not hold; give an area between -85 and 85 degrees latitude"
+        )
+    _check_wrap(lon, lat, path, where)
     return arr
+
+
+def _check_wrap(lon: np.ndarray, lat: np.ndarray, path: Path, where: str) -> None:
+    """Refuse a ring that goes round a pole or across the antimeridian (an edge over 180 degrees of
+    longitude, which a lon/lat polygon draws the long way round the Earth)."""
+    if len(lon) < 2:
+        return
+    step = np.diff(lon)
+    wrapped = (step + 180.0) % 360.0 - 180.0
+    if abs(float(wrapped.sum() + ((lon[0] - lon[-1] + 180.0) % 360.0 - 180.0))) > 180.0:
+        pole = "North" if float(lat.mean()) > 0 else "South"
+        raise InputError(
+            f"{path}: {where}: the ring goes round the {pole} Pole; swarmctl grids areas in a local projection "
+            "that cannot hold a pole: give an area that does not contain one"
+        )
+    jump = np.flatnonzero(np.abs(step) > 180.0)
+    if len(jump):
+        i = int(jump[0])
+        raise InputError(
+            f"{path}: {where}: the ring crosses the antimeridian (from longitude {lon[i]:g} to {lon[i + 1]:g}), "
+            "which swarmctl cannot grid; plan the parts east and west of 180 degrees as two areas"
+        )
 
 
 def make_polygon(shell: np.ndarray, holes: list[np.ndarray], path: Path, where: str) -> Polygon:

@@ -1,10 +1,18 @@
-"""One vehicle's side of the knowledge sharing: a Knowledge, a UDP MAVLink endpoint and the protocol.
+"""One vehicle's side of the knowledge sharing: a Knowledge, where its messages go, and the protocol.
 
-    ex = KnowledgeExchange(Knowledge(50, 50, vehicle_id=2), mission_id=7, peer=radio.address)
+    ex = KnowledgeExchange(Knowledge(50, 50, vehicle_id=2), mission_id=7, peer=radio.address)   # UDP
+    ex = KnowledgeExchange(Knowledge(50, 50, vehicle_id=2), mission_id=7, bus=bus, outlet=write)  # in-process
     ex.step(step, cell, on_target, cells, phi, obstacle)   # sense, then publish the delta (+ digest)
     ex.poll(timeout=0.0)                                   # merge what arrived, answer requests
 
-Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge.md):
+Two ways the messages travel, one protocol:
+- a UDP socket sending to `peer` (a MAVLink router, telemetry mesh or the loopback radio) and reading
+  what it forwards: agents in separate processes (`swarmctl agent`, the onboard mode);
+- a `swarmctl.knowledge.bus.KnowledgeBus`: the agents of one process (ground mode). Each frame is
+  written once to `outlet` (the agent's own vehicle link: for the recording and any onboard agent)
+  and its message delivered through the bus to the other agents of the process.
+
+Protocol (payload layouts in swarmctl/knowledge/codec.py, docs/knowledge.md):
 - every step the vehicle broadcasts a DELTA with the cells it explored itself since the last one
   (no relaying, like the simulator) and its position; a delta that does not fit is chunked;
 - a vehicle that finds targets broadcasts a DETECTION at once; every `digest_every` steps it
@@ -19,9 +27,9 @@ Protocol (payload layouts in swarmctl/mavlink/knowledge_codec.py, docs/knowledge
   (docs/knowledge.md). Steps are the swarm's common mission step.
 Every message carries the sender's position; positions merge newest-step-wins.
 
-Concurrency: none of its own. The owner calls `poll` (from its loop, or when `fileno()` is readable,
-e.g. asyncio's loop.add_reader); sends happen in the caller's thread. Messages from this vehicle's
-own id (echoes) are ignored. Bad bytes are counted in `codec.rejected`, never raised.
+Concurrency: none of its own. The owner calls `poll` (from its loop, or, on UDP, when `fileno()` is
+readable, e.g. asyncio's loop.add_reader); sends happen in the caller's thread. Messages from this
+vehicle's own id (echoes) are ignored. Bad bytes are counted in `codec.rejected`, never raised.
 """
 
 from __future__ import annotations
@@ -29,13 +37,18 @@ from __future__ import annotations
 import logging
 import select
 import socket
-from collections import Counter
+from collections import Counter, deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.knowledge.codec import BitmapChunk, KnowledgeCodec, chunk_mask
 from swarmctl.knowledge.model import Delta, Detection, Knowledge
+
+if TYPE_CHECKING:
+    from swarmctl.knowledge.bus import KnowledgeBus
 
 log = logging.getLogger("swarmctl.knowledge")
 
@@ -45,14 +58,18 @@ RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 
 
 class KnowledgeExchange:
-    """Knowledge + a UDP socket on `host` that sends to `peer` (a radio or a MAVLink router)."""
+    """Knowledge + where its messages go: a UDP socket on `host` that sends to `peer` (a radio or a
+    MAVLink router), or a KnowledgeBus with an optional `outlet` (a callable taking each frame's bytes,
+    e.g. a writer onto the vehicle's MAVLink link)."""
 
     def __init__(
         self,
         knowledge: Knowledge,
         mission_id: int,
-        peer: Address,
+        peer: Address | None = None,
         *,
+        bus: KnowledgeBus | None = None,
+        outlet: Callable[[bytes], bool] | None = None,
         system_id: int | None = None,
         digest_every: int = 5,
         push: bool = True,
@@ -60,18 +77,28 @@ class KnowledgeExchange:
         host: str = "127.0.0.1",
         port: int = 0,
     ):
+        if (peer is None) == (bus is None):
+            raise ValueError("a KnowledgeExchange sends either to a UDP peer or on a bus: give one of them")
         self.knowledge = knowledge
         self.vehicle_id = knowledge.vehicle_id
         self.peer = peer
+        self.bus = bus
+        self.outlet = outlet
         self.digest_every = int(digest_every)
         self.push = push
         self.push_fanout = int(push_fanout)
         self._now = 0  # the latest step given to `step`/`publish`
         self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
         self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
-        sysid = knowledge.vehicle_id + 1 if system_id is None else system_id
-        self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=sysid)
+        self.system_id = knowledge.vehicle_id + 1 if system_id is None else int(system_id)
+        self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=self.system_id)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
+        self._inbox: deque[tuple[object, str, int]] = deque()  # bus deliveries: (message, kind, frame bytes)
+        self.sock = None
+        self.address: Address | None = None
+        if bus is not None:
+            bus.join(self)
+            return
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
@@ -87,10 +114,14 @@ class KnowledgeExchange:
 
     # ----- life cycle -------------------------------------------------------------------------------
     def fileno(self) -> int:
-        return self.sock.fileno()
+        """The UDP socket's descriptor (-1 on a bus: nothing to wait for, deliveries are in memory)."""
+        return self.sock.fileno() if self.sock is not None else -1
 
     def close(self) -> None:
-        self.sock.close()
+        if self.sock is not None:
+            self.sock.close()
+        if self.bus is not None:
+            self.bus.leave(self)
 
     def __enter__(self) -> KnowledgeExchange:
         return self
@@ -100,14 +131,23 @@ class KnowledgeExchange:
 
     # ----- sending ----------------------------------------------------------------------------------
     def _send(self, message, repair: bool = False) -> None:
-        for frame in self.codec.frames(message, repair):
-            try:
-                self.sock.sendto(frame, self.peer)
-            except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
-                if not self.stats["send_errors"]:
-                    log.warning("knowledge: cannot send to %s (%s); further failures are only counted", self.peer, exc)
-                self.stats["send_errors"] += 1
-                continue
+        """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus."""
+        for payload_type, payload in self.codec.encode(message, repair):
+            frame = self.codec.frame(payload_type, payload)
+            if self.bus is not None:
+                if self.outlet is not None and self.outlet(frame):
+                    self.stats["link_packets"] += 1  # on the vehicle's own MAVLink link
+                self.bus.publish(self, payload_type, payload, len(frame))
+            else:
+                try:
+                    self.sock.sendto(frame, self.peer)
+                except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
+                    if not self.stats["send_errors"]:
+                        log.warning(
+                            "knowledge: cannot send to %s (%s); further failures are only counted", self.peer, exc
+                        )
+                    self.stats["send_errors"] += 1
+                    continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
 
@@ -164,8 +204,16 @@ class KnowledgeExchange:
             self._send(Detection(self.vehicle_id, step, cell, on_target, np.array(sorted(kn.targets))))
 
     # ----- receiving --------------------------------------------------------------------------------
+    def deliver(self, message, kind: str, size: int) -> None:
+        """A message from another member of the bus (`kind` as in KIND_NAMES, its frame `size` bytes);
+        handled at the next poll."""
+        self._inbox.append((message, kind, size))
+
     def poll(self, timeout: float = 0.0) -> int:
-        """Handle every datagram waiting (waiting up to `timeout` s for the first). Returns how many."""
+        """Handle every datagram (UDP) or delivery (bus) waiting, waiting on UDP up to `timeout` s for the
+        first. Returns how many."""
+        if self.bus is not None:
+            return self._poll_bus()
         handled = 0
         wait = timeout
         while True:
@@ -185,6 +233,17 @@ class KnowledgeExchange:
             self.stats["received_bytes"] += len(data)
             for message in self.codec.parse_datagram(data):
                 self._handle(message)
+
+    def _poll_bus(self) -> int:
+        handled = 0
+        while self._inbox:
+            message, kind, size = self._inbox.popleft()
+            handled += 1
+            self.stats["received_packets"] += 1
+            self.stats["received_bytes"] += size
+            self.codec.accepted[kind] += 1  # what the codec would have counted had it decoded the frame
+            self._handle(message)
+        return handled
 
     def _handle(self, message) -> None:
         kn = self.knowledge

@@ -26,7 +26,7 @@ import numpy as np
 
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
-from swarmctl.world.scenario import fov_offsets
+from swarmctl.world.scenario import fov_offsets, value_map
 
 PHI_LEVELS = 255
 PHI_TOLERANCE = 0.5 / PHI_LEVELS + 1e-6  # how far a quantised phi may be from the exact one
@@ -394,6 +394,12 @@ def beliefs_from_knowledge(
     """The Beliefs of the agents whose Knowledge is given (one batch, one decider each), as the
     simulator's SearchEnv.beliefs builds them from its arrays.
 
+    phi_hat on an explored cell is the larger of the phi reported for it (a detector's, or 0 where the
+    cell was explored from the vehicle's position alone) and the value map of the targets the agent
+    knows (swarmctl.world.scenario.value_map with the settings' sigma2 and cut-off, quantised as phi
+    is), as the simulator's value map is of its targets: a target learnt later raises the value of the
+    cells explored before.
+
     vehicles: the swarm's size N (default: enough for every vehicle id the knowledges name);
     settings: the observation settings (default the paper's, with the quantised phi's tolerance);
     hovering: whether each agent itself hovers on a target (default: none do: they are searching);
@@ -420,12 +426,15 @@ def beliefs_from_knowledge(
                 positions[0, i, v] = p.cell
                 hover[0, i, v] = p.on_target and v != k.vehicle_id
         hover[0, i, k.vehicle_id] = bool(hovering[i]) if hovering is not None else False
-    explored = np.stack([k.explored for k in knowledges])[None]
-    phi_hat = np.stack([np.where(k.explored, k.phi, np.float32(1.0)) for k in knowledges])[None]
-    obstacles = np.stack([k.explored & k.obstacle for k in knowledges])[None]
-    targets = np.stack([k.known_targets() for k in knowledges])[None]
-    me = np.array([[k.vehicle_id for k in knowledges]], dtype=np.int64)
     settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
+    explored = np.stack([k.explored for k in knowledges])[None]
+    targets = np.stack([k.known_targets() for k in knowledges])[None]
+    value = _known_value(targets[0], settings)
+    phi_hat = np.stack(
+        [np.where(k.explored, np.maximum(k.phi, v), np.float32(1.0)) for k, v in zip(knowledges, value)]
+    )[None]
+    obstacles = np.stack([k.explored & k.obstacle for k in knowledges])[None]
+    me = np.array([[k.vehicle_id for k in knowledges]], dtype=np.int64)
     return Beliefs(
         explored,
         phi_hat,
@@ -438,3 +447,19 @@ def beliefs_from_knowledge(
         int(step),
         settings,
     )
+
+
+def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.ndarray]:
+    """The value map of each agent's known targets ((A, W, H) bool), quantised as phi is (so where a
+    detector reported the true phi, the max leaves it unchanged: quantising is monotone), computed once
+    per distinct set (agents sharing knowledge mostly know the same targets)."""
+    w, h = targets.shape[1:]
+    maps: dict[bytes, np.ndarray] = {}
+    out = []
+    for mask in targets:
+        cells = np.argwhere(mask)
+        key = cells.tobytes()
+        if key not in maps:
+            maps[key] = dequantise_phi(quantise_phi(value_map(cells, w, h, settings.sigma2, settings.phi_cutoff)))
+        out.append(maps[key])
+    return out

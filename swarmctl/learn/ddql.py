@@ -14,6 +14,7 @@ import csv
 import shutil
 import subprocess
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -22,10 +23,13 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from swarmctl.errors import InputError, ScenarioError
+from swarmctl.learn.curriculum import CURRICULA, Curriculum, held_out_worlds
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy.base import allowed_moves, softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, model_reference, save_checkpoint
-from swarmctl.policy.qnet import QNetwork
+from swarmctl.policy.qnet import QNetwork, make_network
+from swarmctl.world.beliefs import VARIANT_CHANNELS
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
 
@@ -62,6 +66,8 @@ class TrainConfig:
     eval_steps: int = 40
     eval_tau: float = 0.1
     snapshots: tuple[int, ...] = ()  # episode counts at which a copy is kept as NAME.epN.pt (learning curves)
+    curriculum: str | None = None  # train on many worlds (learn.curriculum.CURRICULA), None = the one given
+    keep_resume: bool = False  # at every evaluation, save what --resume needs (the replay too: NAME.replay.pt)
     threads: int = 2  # torch CPU threads
     extra: dict = field(default_factory=dict)
 
@@ -120,13 +126,22 @@ def _eval_rank(row: dict) -> tuple:
     return (row["success_rate"], -row["mean_steps"])
 
 
-def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: torch.device) -> dict:
+def greedy_eval(
+    net: torch.nn.Module,
+    world: WorldConfig,
+    cfg: TrainConfig,
+    device: torch.device,
+    blocked: np.ndarray | None = None,
+    steps: int | None = None,
+    episodes: int | None = None,
+) -> dict:
     """Success rate and mean duration on the fixed held-out episodes, softmax tau = eval_tau (under the
-    deployment rules when cfg.rules)."""
-    env = SearchEnv(world, batch=cfg.eval_episodes, stop_at_success=True)
-    obs = env.reset(seed=cfg.eval_seed)
+    deployment rules when cfg.rules); `blocked`: every episode on that fixed map."""
+    steps = cfg.eval_steps if steps is None else steps
+    env = SearchEnv(world, batch=cfg.eval_episodes if episodes is None else episodes, stop_at_success=True)
+    obs = env.reset(seed=cfg.eval_seed, blocked=blocked)
     rng = np.random.default_rng(cfg.eval_seed)
-    for _ in range(cfg.eval_steps):
+    for _ in range(steps):
         if env.done.all():
             break
         with torch.inference_mode():
@@ -135,8 +150,24 @@ def greedy_eval(net: QNetwork, world: WorldConfig, cfg: TrainConfig, device: tor
             q = np.where(rule_mask(env), q, -np.inf)
         actions = softmax_sample(q, cfg.eval_tau, rng.random(q.shape[0])).reshape(env.batch, env.uavs)
         obs, _, _, _ = env.step(actions)
-    duration = np.where(env.done, env.duration, cfg.eval_steps)
+    duration = np.where(env.done, env.duration, steps)
     return {"success_rate": float(env.done.mean()), "mean_steps": float(duration.mean())}
+
+
+def held_out_eval(
+    net: torch.nn.Module, world: WorldConfig, cfg: TrainConfig, device: torch.device, held_out: list | None
+) -> dict:
+    """The held-out evaluation: on the world trained (the paper), or, with a curriculum, on each of its
+    held-out worlds (eval_episodes split between them), with the mean success as the rate."""
+    if not held_out:
+        return greedy_eval(net, world, cfg, device)
+    per = max(1, cfg.eval_episodes // len(held_out))
+    rows = {w.name: greedy_eval(net, w.cfg, cfg, device, w.blocked, w.steps, per) for w in held_out}
+    return {
+        "success_rate": float(np.mean([r["success_rate"] for r in rows.values()])),
+        "mean_steps": float(np.mean([r["mean_steps"] for r in rows.values()])),
+        "worlds": rows,
+    }
 
 
 def gradient_step(
@@ -165,6 +196,28 @@ def gradient_step(
     return loss.detach()
 
 
+@dataclass
+class Progress:
+    """The trainer's counters: all that, with the networks, optimiser, replay and random states, a
+    resumed run needs to continue where it stopped."""
+
+    episodes_done: int = 0
+    joint_steps: int = 0
+    samples: int = 0
+    updates: int = 0
+    update_credit: float = 0.0
+    rounds: int = 0
+    next_eval: int = 0
+    train_seconds: float = 0.0
+    wall_seconds: float = 0.0  # of the earlier sessions of a resumed run
+    evals: list = field(default_factory=list)
+
+
+def replay_path(out: Path) -> Path:
+    """Where a run keeps its replay memory for --resume: NAME.replay.pt beside NAME.pt (not committed)."""
+    return out.with_name(out.stem + ".replay.pt")
+
+
 def train(
     world: WorldConfig,
     cfg: TrainConfig,
@@ -174,9 +227,16 @@ def train(
     device: str = "cpu",
     progress: bool = True,
     metrics_path: Path | None = None,
+    resume: bool = False,
+    stop: Callable[[], bool] | None = None,
 ) -> dict:
     """Train the shared Q-network; writes the checkpoint to `out` (and the one of the best held-out
-    evaluation to best_path(out)) and returns its metadata."""
+    evaluation to best_path(out)) and returns its metadata.
+
+    resume: continue the run whose checkpoint is `out` (its networks, optimiser, counters and random
+    states; its replay memory from replay_path(out), refilled with random episodes if it is lost).
+    stop: polled after every round; when it returns True the run saves everything --resume needs and
+    returns (its metadata carries "stopped": True)."""
     start_time = time.time()
     unreachable = [n for n in cfg.snapshots if n != cfg.episodes and (n % cfg.parallel_envs or n > cfg.episodes)]
     if unreachable:
@@ -188,28 +248,51 @@ def train(
     torch.set_num_threads(cfg.threads)
     dev = torch.device(device)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD0]))
+    curriculum = Curriculum(CURRICULA[cfg.curriculum], world, seed) if cfg.curriculum else None
+    held_out = held_out_worlds(world, cfg.curriculum) if curriculum else None
 
     # networks, optimiser, replay
     if init is not None:
         q_net, init_info = load_checkpoint(init, window=world.window)
+        if q_net.variant != world.variant:
+            q_net = _transplant(q_net, make_network(world.variant, world.window), init)
         q_net.train()
     else:
-        q_net, init_info = QNetwork(world.window), None
+        q_net, init_info = make_network(world.variant, world.window), None
     # channels-last activations: oneDNN's convolutions run a gradient step 1.4x faster in that layout
     q_net.to(dev, memory_format=LAYOUT)
     target_net = copy.deepcopy(q_net).to(dev, memory_format=LAYOUT)
     optimizer = torch.optim.RAdam(q_net.parameters(), lr=cfg.lr)
-    obs_shape = (3, world.window, world.window)
+    obs_shape = (VARIANT_CHANNELS[world.variant], world.window, world.window)
     replay = ReplayMemory(cfg.replay_capacity, obs_shape, seed=seed, device=dev)
+    state = Progress(next_eval=cfg.eval_every)
+    refill = cfg.prefill_episodes
+    if resume:
+        state, refill = _resume(out, q_net, target_net, optimizer, replay, rng, cfg, dev)
 
-    # 1. prefill the replay with random-policy episodes
-    prefill_batch = max(1, min(cfg.prefill_episodes, 100))
+    def start_round(round_index: int, at: float, n: int, first: int) -> tuple[SearchEnv, np.ndarray, int]:
+        """The environment of a round (the curriculum's world at progress `at`, or the one world),
+        reset to episodes first..first+n-1; returns it, its observations and the episode length."""
+        if curriculum is None:
+            env = SearchEnv(world, batch=n, stop_at_success=False)
+            return env, env.reset(seed, range(first, first + n)), cfg.episode_lengths[round_index % 2]
+        for attempt in range(10):
+            w = curriculum.world(round_index, at, attempt)
+            env = SearchEnv(w.cfg, batch=n, stop_at_success=False)
+            try:
+                return env, env.reset(seed, range(first, first + n), w.blocked), w.steps
+            except ScenarioError:  # one of its episodes cannot be drawn: take the round's next world
+                continue
+        raise ScenarioError(f"the curriculum drew 10 worlds for round {round_index} that its episodes do not fit")
+
+    # 1. prefill the replay with random-policy episodes (again, after a resume that lost its replay)
+    prefill_batch = max(1, min(refill, 100))
     done_prefill, round_index = 0, 0
-    while done_prefill < cfg.prefill_episodes:
-        n = min(prefill_batch, cfg.prefill_episodes - done_prefill)
-        env = SearchEnv(world, batch=n, stop_at_success=False)
-        obs = env.reset(seed, range(PREFILL_EPISODE_OFFSET + done_prefill, PREFILL_EPISODE_OFFSET + done_prefill + n))
-        for _ in range(cfg.episode_lengths[round_index % 2]):
+    while done_prefill < refill:
+        n = min(prefill_batch, refill - done_prefill)
+        first = PREFILL_EPISODE_OFFSET + state.episodes_done + done_prefill
+        env, obs, length = start_round(-1 - round_index, state.episodes_done / cfg.episodes, n, first)
+        for _ in range(length):
             actions = rng.integers(0, 5, size=(n, env.uavs))
             next_obs, reward, _, _ = env.step(actions)
             replay.add(obs.reshape(-1, *obs_shape), actions.ravel(), reward.ravel(), next_obs.reshape(-1, *obs_shape))
@@ -220,67 +303,58 @@ def train(
     # 2. train
     metrics_path = metrics_path or out.with_suffix(".csv")
     metrics_path.parent.mkdir(parents=True, exist_ok=True)
-    metrics_file = open(metrics_path, "w", newline="")
+    metrics_file = open(metrics_path, "a" if resume and metrics_path.exists() else "w", newline="")
     writer = csv.writer(metrics_file)
-    writer.writerow(
-        [
-            "episodes",
-            "joint_steps",
-            "samples",
-            "updates",
-            "loss",
-            "exploration",
-            "train_success",
-            "eval_success",
-            "eval_mean_steps",
-            "wall_s",
-        ]
-    )
-    evals: list[dict] = []
-    episodes_done, joint_steps, samples, updates, update_credit = 0, 0, 0, 0, 0.0
-    train_seconds = 0.0
+    if metrics_file.tell() == 0:
+        writer.writerow(METRICS)
 
-    def save() -> dict:
-        """Write the checkpoint as it stands (at every evaluation and at the end)."""
-        wall = time.time() - start_time
+    def save(resume_state: bool = False) -> dict:
+        """Write the checkpoint as it stands (at every evaluation, at the end, when stopped)."""
+        wall = state.wall_seconds + time.time() - start_time
         metadata = {
-            "scenario": world.scenario,
-            "episodes": episodes_done,
+            "scenario": "curriculum " + cfg.curriculum if cfg.curriculum else world.scenario,
+            "episodes": state.episodes_done,
             "episodes_planned": cfg.episodes,
             "seed": seed,
             "git_commit": git_commit(),
             "wall_time_s": round(wall, 1),
-            "samples": samples,
-            "joint_steps": joint_steps,
-            "updates": updates,
-            "samples_per_s": round(samples / max(wall, 1e-9), 1),
+            "samples": state.samples,
+            "joint_steps": state.joint_steps,
+            "updates": state.updates,
+            "samples_per_s": round(state.samples / max(wall, 1e-9), 1),
             # in the training loop only: acting, stepping, replay and gradient steps (no prefill, evaluation, saving)
-            "train_samples_per_s": round(samples / max(train_seconds, 1e-9), 1),
-            "evals": evals,
-            "final_eval": evals[-1] if evals else None,
+            "train_samples_per_s": round(state.samples / max(state.train_seconds, 1e-9), 1),
+            "evals": state.evals,
+            "final_eval": state.evals[-1] if state.evals else None,
             "init": model_reference(init, init_info) if init else None,
             "init_metadata": init_info["metadata"] if init_info else None,
             "torch": str(torch.__version__),
             "device": str(dev),
         }
         saved = copy.deepcopy(q_net).cpu().to(memory_format=torch.contiguous_format)
-        save_checkpoint(out, saved, world.as_dict(), asdict(cfg), metadata)
+        snapshot = None
+        if resume_state:
+            state.wall_seconds = wall
+            snapshot = _resume_state(state, target_net, optimizer, replay, rng)
+            replay.save(replay_path(out))
+            state.wall_seconds -= time.time() - start_time  # this session's share is added at the next save
+        save_checkpoint(out, saved, world.as_dict(), asdict(cfg), metadata, resume=snapshot)
         return metadata
 
     recent_loss, recent_success = [], []
-    next_eval = cfg.eval_every
-    bar = tqdm(total=cfg.episodes, unit="ep", disable=not progress, desc="train")
-    rounds = 0
-    while episodes_done < cfg.episodes:
+    bar = tqdm(total=cfg.episodes, initial=state.episodes_done, unit="ep", disable=not progress, desc="train")
+    metadata: dict = {}
+    explore_value = cfg.exploration_value(state.episodes_done / cfg.episodes)
+    while state.episodes_done < cfg.episodes:
         round_start = time.perf_counter()
-        p = min(cfg.parallel_envs, cfg.episodes - episodes_done)
-        env = SearchEnv(world, batch=p, stop_at_success=False)
-        obs = env.reset(seed, range(TRAIN_EPISODE_OFFSET + episodes_done, TRAIN_EPISODE_OFFSET + episodes_done + p))
+        p = min(cfg.parallel_envs, cfg.episodes - state.episodes_done)
+        first = TRAIN_EPISODE_OFFSET + state.episodes_done
+        env, obs, length = start_round(state.rounds, state.episodes_done / cfg.episodes, p, first)
         obs_t = torch.from_numpy(obs.reshape(-1, *obs_shape)).to(dev)  # each observation crosses to the device once
         succeeded = np.zeros(p, dtype=bool)
         losses = []  # on the device: read once a round, not once a gradient step
-        for _ in range(cfg.episode_lengths[rounds % 2]):
-            explore_value = cfg.exploration_value(episodes_done / cfg.episodes)
+        for _ in range(length):
+            explore_value = cfg.exploration_value(state.episodes_done / cfg.episodes)
             with torch.inference_mode():
                 q = q_net(obs_t).cpu().numpy()
             actions = explore(q, cfg, explore_value, rng, rule_mask(env) if cfg.rules else None).reshape(p, env.uavs)
@@ -289,46 +363,47 @@ def train(
             next_t = torch.from_numpy(next_obs.reshape(-1, *obs_shape)).to(dev)
             replay.add(obs_t, actions.ravel(), reward.ravel(), next_t)
             obs_t = next_t
-            joint_steps += 1
-            samples += p * env.uavs
+            state.joint_steps += 1
+            state.samples += p * env.uavs
 
             if replay.size >= cfg.batch_size:  # without prefill, learning waits for one batch of samples
-                update_credit += cfg.updates_per_step
-            while update_credit >= 1.0:
-                update_credit -= 1.0
+                state.update_credit += cfg.updates_per_step
+            while state.update_credit >= 1.0:
+                state.update_credit -= 1.0
                 losses.append(gradient_step(q_net, target_net, optimizer, replay.sample(cfg.batch_size, LAYOUT), cfg))
-                updates += 1
-                if updates % cfg.target_update_every == 0:
+                state.updates += 1
+                if state.updates % cfg.target_update_every == 0:
                     target_net.load_state_dict(q_net.state_dict())
         if losses:
             recent_loss.extend(torch.stack(losses).cpu().tolist())
-        train_seconds += time.perf_counter() - round_start
-        rounds += 1
-        episodes_done += p
+        state.train_seconds += time.perf_counter() - round_start
+        state.rounds += 1
+        state.episodes_done += p
         recent_success.extend(succeeded.tolist())
         recent_loss, recent_success = recent_loss[-200:], recent_success[-200:]
-        wall = time.time() - start_time
+        wall = state.wall_seconds + time.time() - start_time
         eval_row = {}
-        snapshot_due = episodes_done in cfg.snapshots
-        if episodes_done >= next_eval or episodes_done >= cfg.episodes or snapshot_due:
+        snapshot_due = state.episodes_done in cfg.snapshots
+        stopping = stop is not None and stop()
+        if state.episodes_done >= state.next_eval or state.episodes_done >= cfg.episodes or snapshot_due:
             q_net.eval()
-            eval_row = greedy_eval(q_net, world, cfg, dev)
+            eval_row = held_out_eval(q_net, world, cfg, dev, held_out)
             q_net.train()
-            evals.append({"episodes": episodes_done, **eval_row})
-            if episodes_done >= next_eval:
-                next_eval += cfg.eval_every
-            metadata = save()
+            state.evals.append({"episodes": state.episodes_done, **eval_row})
+            if state.episodes_done >= state.next_eval:
+                state.next_eval += cfg.eval_every
+            metadata = save(resume_state=cfg.keep_resume and state.episodes_done < cfg.episodes)
             if snapshot_due:
-                shutil.copyfile(out, snapshot_path(out, episodes_done))
-            if max(evals, key=_eval_rank) is evals[-1]:  # the best so far on the held-out episodes
+                shutil.copyfile(out, snapshot_path(out, state.episodes_done))
+            if max(state.evals, key=_eval_rank) is state.evals[-1]:  # the best so far on the held-out episodes
                 shutil.copyfile(out, best_path(out))
         mean_loss = float(np.mean(recent_loss)) if recent_loss else float("nan")
         writer.writerow(
             [
-                episodes_done,
-                joint_steps,
-                samples,
-                updates,
+                state.episodes_done,
+                state.joint_steps,
+                state.samples,
+                state.updates,
                 f"{mean_loss:.5f}",
                 f"{explore_value:.4f}",
                 f"{np.mean(recent_success):.3f}",
@@ -340,12 +415,94 @@ def train(
         metrics_file.flush()
         bar.update(p)
         bar.set_postfix(
-            samples_s=f"{samples / max(wall, 1e-9):.0f}",
+            samples_s=f"{state.samples / max(state.train_seconds, 1e-9):.0f}",
             success=f"{np.mean(recent_success):.2f}",
             loss=f"{mean_loss:.4f}",
-            eval=f"{evals[-1]['success_rate']:.2f}" if evals else "-",
+            eval=f"{state.evals[-1]['success_rate']:.2f}" if state.evals else "-",
         )
+        if stopping and state.episodes_done < cfg.episodes:
+            metadata = {**save(resume_state=True), "stopped": True}
+            break
     bar.close()
     metrics_file.close()
-
     return metadata  # the evaluation after the last round saved the final checkpoint
+
+
+def _transplant(source: torch.nn.Module, target: torch.nn.Module, path: Path) -> torch.nn.Module:
+    """Start a global-local network from a paper network's local convolutions (the same layers on the
+    same three channels); the whole-map branch and the head start fresh."""
+    if not (hasattr(source, "features") and hasattr(target, "local")):
+        raise InputError(f"--init {path}: a {source.variant} network cannot start a {target.variant} one")
+    target.local.load_state_dict(source.features.state_dict())
+    return target
+
+
+METRICS = [
+    "episodes",
+    "joint_steps",
+    "samples",
+    "updates",
+    "loss",
+    "exploration",
+    "train_success",
+    "eval_success",
+    "eval_mean_steps",
+    "wall_s",
+]
+
+
+def _resume_state(state: Progress, target_net, optimizer, replay: ReplayMemory, rng: np.random.Generator) -> dict:
+    """What a checkpoint's `resume` field holds (plain data and tensors: loads with weights_only)."""
+    return {
+        "progress": asdict(state),
+        "target": {k: v.detach().cpu() for k, v in target_net.state_dict().items()},
+        "optimizer": optimizer.state_dict(),
+        "rng": rng.bit_generator.state,
+        "torch_rng": torch.get_rng_state(),
+        "replay": replay.state(),
+    }
+
+
+def _resume(
+    out: Path,
+    q_net,
+    target_net,
+    optimizer,
+    replay: ReplayMemory,
+    rng: np.random.Generator,
+    cfg: TrainConfig,
+    dev: torch.device,
+) -> tuple[Progress, int]:
+    """Load a stopped run's state into the fresh networks, optimiser, replay and generator; returns the
+    counters and how many random episodes must refill a lost replay (0 when it was found)."""
+    net, info = load_checkpoint(out)
+    snapshot = info.get("resume")
+    if not snapshot:
+        raise InputError(
+            f"{out}: holds no state to resume (the run finished, or was not saved to resume); "
+            "train without --resume, or give the checkpoint of a stopped run"
+        )
+    train_cfg = info.get("train") or {}
+    for key in ("parallel_envs", "batch_size", "replay_capacity", "curriculum", "rules", "exploration"):
+        if train_cfg.get(key) != getattr(cfg, key):
+            raise InputError(
+                f"{out}: was trained with {key} = {train_cfg.get(key)!r}, not {getattr(cfg, key)!r}; "
+                "resume with the run's own options"
+            )
+    q_net.load_state_dict(net.state_dict())
+    target_net.load_state_dict(snapshot["target"])
+    optimizer.load_state_dict(snapshot["optimizer"])
+    rng.bit_generator.state = snapshot["rng"]
+    torch.set_rng_state(snapshot["torch_rng"])
+    progress = snapshot["progress"]
+    state = Progress(**progress)
+    refill = 0
+    path = replay_path(out)
+    if not replay.load(path, snapshot["replay"]):
+        refill = max(1, cfg.prefill_episodes)
+        print(
+            f"train: {path} is missing or does not match the run; refilling the replay with {refill} random "
+            "episodes before going on",
+            flush=True,
+        )
+    return state, refill

@@ -179,6 +179,7 @@ class NotConnected:
     lost = True
     battery_remaining: int | None = None
     target = None
+    distance_flown_m = 0.0
 
     def __init__(self, name: str):
         self.name = name

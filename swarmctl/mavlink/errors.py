@@ -40,3 +40,11 @@ class WrongAutopilot(MavlinkError):
     def __init__(self, vehicle: str, reported: str, flies: str):
         self.vehicle, self.reported, self.flies = vehicle, reported, flies
         super().__init__(f"{vehicle}: the vehicle reports autopilot {reported}; this driver flies {flies}")
+
+
+class NotReady(WaitTimeout):
+    """A vehicle that did not become ready to arm in time; the message names the last reason it gave."""
+
+    def __init__(self, vehicle: str, timeout: float, reason: str):
+        self.what, self.vehicle, self.reason = "ready to arm", vehicle, reason
+        MavlinkError.__init__(self, f"{vehicle}: not ready to arm after {timeout:g} s: {reason}")

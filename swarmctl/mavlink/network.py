@@ -74,6 +74,10 @@ class LinkStats:
     received: int = 0
     sent: int = 0
     bad_data: int = 0
+    console_bytes: int = 0  # an autopilot's boot text on a stream link (SITL's SERIAL0), not bad data
+
+
+CONSOLE_KEEP = 4096  # bytes of console text kept on the link (`MavlinkLink.console`)
 
 
 class MavlinkLink:
@@ -107,6 +111,8 @@ class MavlinkLink:
         self._link_callbacks: list[Callable[[int, str], None]] = []
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
         self._bad_logged = -1e9
+        self.console = b""  # the first CONSOLE_KEEP bytes of console text (see _console_text)
+        self._framed = False  # a valid MAVLink frame has arrived
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -185,6 +191,8 @@ class MavlinkLink:
         now = time.monotonic()
         for msg in msgs:
             mtype = msg.get_type()
+            if mtype == "BAD_DATA" and self._console_text(msg):
+                continue
             if mtype == "BAD_DATA":
                 self.stats.bad_data += 1
                 if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
@@ -196,6 +204,7 @@ class MavlinkLink:
                         getattr(msg, "reason", ""),
                     )
                 continue
+            self._framed = True
             self.stats.received += 1
             src = msg.get_srcSystem()
             if mtype == "HEARTBEAT":
@@ -229,6 +238,25 @@ class MavlinkLink:
                         fut.set_result(msg)
                 except Exception as exc:
                     fut.set_exception(exc)
+
+    def _console_text(self, msg: Any) -> bool:
+        """True when these bad bytes are the autopilot's console text: on a stream link (TCP, serial),
+        before its first valid frame or while a vehicle on it still reports MAV_STATE_BOOT (ArduCopter
+        SITL prints 152 bytes on SERIAL0 before its first heartbeat and 12 more between the first two).
+        They are counted in stats.console_bytes and kept in `console`, not reported as bad data."""
+        if self._transport is None or self._transport.datagrams:
+            return False
+        booting = any(
+            p.heartbeat is not None and p.heartbeat.system_status == MAV.MAV_STATE_BOOT for p in self.peers.values()
+        )
+        if self._framed and not booting:
+            return False
+        data = bytes(msg.get_msgbuf())
+        if not self.stats.console_bytes:
+            log.info("console text before MAVLink on %s (the autopilot booting)", self.endpoint)
+        self.stats.console_bytes += len(data)
+        self.console = (self.console + data)[:CONSOLE_KEEP]
+        return True
 
     def add_listener(self, callback: Callable[[Any], None]) -> None:
         """Call callback(msg) on the event loop for every message received."""

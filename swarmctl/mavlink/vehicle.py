@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import abc
 import asyncio
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -16,7 +17,12 @@ from typing import Any, ClassVar
 
 from swarmctl.mavlink.autopilots.base import Autopilot
 from swarmctl.mavlink.codec import distance_m
-from swarmctl.mavlink.errors import WaitTimeout
+from swarmctl.mavlink.errors import MavlinkError, WaitTimeout
+from swarmctl.mavlink.limits import FlightLimits
+
+log = logging.getLogger(__name__)
+
+AIRBORNE_M = 0.5  # the odometer counts a stretch flown once either end is this high above home
 
 
 @dataclass(frozen=True)
@@ -41,6 +47,23 @@ class Target:
     rel_alt: float
 
 
+class Odometer:
+    """The 3-D distance flown, from position reports: the straight line between successive fixes
+    (horizontal and vertical together), counted when either fix is at least AIRBORNE_M above home, so
+    the climb, the search and the descent count and GPS noise on the ground does not."""
+
+    def __init__(self) -> None:
+        self.metres = 0.0
+        self._last: Position | None = None
+
+    def add(self, pos: Position) -> None:
+        last = self._last
+        if last is not None and max(last.rel_alt, pos.rel_alt) >= AIRBORNE_M:
+            horizontal = distance_m(last.lat, last.lon, pos.lat, pos.lon)
+            self.metres += math.hypot(horizontal, pos.rel_alt - last.rel_alt)
+        self._last = pos
+
+
 def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, float]]:
     """The (lat, lon) vertices of a fence polygon, checked: at least 3, all distinct and in range; a
     last vertex that repeats the first (a closed ring) is dropped. ValueError otherwise."""
@@ -63,6 +86,8 @@ class Vehicle(abc.ABC):
     name: str
     autopilot_info: ClassVar[Autopilot | None]  # the firmware's description (None: not known yet)
     target: Target | None = None
+    odometer: Odometer  # fed by the driver with every position report
+    _limits: FlightLimits | None = None
 
     @property
     def autopilot(self) -> str | None:
@@ -80,12 +105,51 @@ class Vehicle(abc.ABC):
         """Wait for the vehicle's heartbeat and ask it for the telemetry the controller needs."""
 
     @abc.abstractmethod
-    async def wait_ready(self, timeout: float = 60.0) -> None:
-        """Wait until the vehicle has a position, a home and would pass its pre-arm checks."""
+    async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
+        """Wait until the vehicle can arm in the mode swarmctl flies it in (position, home, its own
+        readiness reports). `report(text)` is called with what the vehicle says meanwhile (its
+        STATUSTEXTs) and with what is still missing whenever that changes. NotReady (a WaitTimeout)
+        after `timeout` names the last reason."""
 
     @abc.abstractmethod
     async def close(self) -> None:
         """Stop background tasks and release the link (if this vehicle owns it)."""
+
+    # --- parameters and the timeouts they give -----------------------------------------------------------
+    async def read_parameter(self, name: str) -> float:
+        """A parameter's value (MavlinkError when the vehicle does not answer or has no such parameter)."""
+        raise MavlinkError(f"{self.name}: this driver reads no parameters")
+
+    @property
+    def limits(self) -> FlightLimits:
+        """The vehicle's speeds: from its parameters once `read_limits` has run, else its firmware's defaults."""
+        if self._limits is None:
+            assert self.autopilot_info is not None
+            self._limits = self.autopilot_info.flight_limits({})
+        return self._limits
+
+    async def read_limits(self) -> FlightLimits:
+        """Read the firmware's speed parameters (its description's `limit_parameters`, all at once) and
+        keep the FlightLimits they give; a parameter that cannot be read counts as its default."""
+        info = self.autopilot_info
+        assert info is not None
+        names = info.limit_parameters
+        answers = await asyncio.gather(*(self.read_parameter(n) for n in names), return_exceptions=True)
+        values: dict[str, float] = {}
+        for name, answer in zip(names, answers):
+            if isinstance(answer, MavlinkError):
+                log.info("%s: %s is not read (%s); its default counts", self.name, name, answer)
+            elif isinstance(answer, BaseException):
+                raise answer
+            else:
+                values[name] = answer
+        self._limits = info.flight_limits(values)
+        return self._limits
+
+    @property
+    def distance_flown_m(self) -> float:
+        """3-D distance flown so far, metres (see Odometer)."""
+        return self.odometer.metres
 
     # --- commands -------------------------------------------------------------------------------------
     @abc.abstractmethod

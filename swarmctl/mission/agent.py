@@ -20,8 +20,6 @@ import time
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
-from swarmctl.mavlink.codec import distance_m
-
 if TYPE_CHECKING:
     from swarmctl.knowledge.exchange import KnowledgeExchange
     from swarmctl.knowledge.model import Knowledge
@@ -29,7 +27,6 @@ if TYPE_CHECKING:
     from swarmctl.mission.spec import VehicleSpec
 
 AIRBORNE_M = 1.0  # a vehicle this high above home (or higher) is flying, not landed
-TRACKING_M = 0.5  # distance flown counts once the vehicle is this high above home
 
 
 class State(StrEnum):
@@ -77,20 +74,32 @@ class IllegalTransition(RuntimeError):
 class Agent:
     """One vehicle's controller: its Vehicle, Knowledge, exchange, sensor feed, state and counters."""
 
-    def __init__(self, index: int, spec: VehicleSpec, vehicle: Any, exchange: KnowledgeExchange, feed: SensorFeed):
+    def __init__(
+        self,
+        index: int,
+        spec: VehicleSpec,
+        vehicle: Any,
+        exchange: KnowledgeExchange,
+        feed: SensorFeed,
+        detector: Any = None,
+    ):
         self.index, self.spec, self.vehicle = index, spec, vehicle
         self.exchange, self.feed = exchange, feed
+        self.detector = detector  # "mavlink" or a local socket (Endpoint); None: sensing from position only
+        self.visited: set[tuple[int, int]] = set()  # cells the vehicle reached (its reports count there)
+        self.sensor_dropped = 0  # report entries outside the footprints of the cells it reached
+        self.unexpected_reports = False  # reports came although the mission gives it no detector
         self.knowledge: Knowledge = exchange.knowledge
         self.state = State.NEW
         self.cell: tuple[int, int] | None = None
         self.steps = 0
-        self.distance = 0.0
         self.refused = 0
         self.timeouts = 0
         self.end_action: str | None = None
         self.end_state: str | None = None
         self.error: str | None = None
-        self._last_fix: tuple[float, float] | None = None
+        self.status: str | None = None  # the latest preflight note (launch.note): what the vehicle says
+        self.notes: dict[str, float] = {}  # preflight note -> when it was last shown (time.monotonic())
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
         self._accepted = 0
@@ -160,14 +169,14 @@ class Agent:
         except Exception:
             return "?"
 
+    @property
+    def distance(self) -> float:
+        """3-D distance the vehicle has flown, metres: its driver's odometer counts every position report
+        of the whole flight (the climb, the search, the return and the descent)."""
+        return float(self.vehicle.distance_flown_m)
+
     def track(self) -> None:
-        """Accumulate the horizontal distance flown from telemetry."""
-        pos = self.vehicle.position
-        if pos is None:
-            return
-        if self._last_fix is not None and pos.rel_alt > TRACKING_M:
-            self.distance += distance_m(self._last_fix[0], self._last_fix[1], pos.lat, pos.lon)
-        self._last_fix = (pos.lat, pos.lon)
+        """Nothing to do each round: the vehicle's odometer follows its telemetry (see `distance`)."""
 
     def received_since(self) -> int:
         """Knowledge messages accepted since the last call."""

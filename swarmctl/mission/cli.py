@@ -14,8 +14,10 @@ from typing import Any
 import click
 
 import swarmctl
+from swarmctl.bounds import SEED, real, whole, writable_folder
 from swarmctl.errors import EXIT_FAILED, InputError
-from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS
+from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, TimingTable
+from swarmctl.world.config import CHANNELS
 
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
@@ -48,9 +50,9 @@ def default_policy(seed: int = 0) -> tuple[Any, str | None]:
 
 
 def _out_folder(out: Path | None, name: str) -> Path:
-    if out is not None:
-        return out
-    return Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    """The recording folder (--out, or runs/NAME-TIME), checked to be writable before anything flies."""
+    folder = out if out is not None else Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    return writable_folder(folder, "--out")
 
 
 def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
@@ -70,8 +72,8 @@ def view_options(func):
 
 
 @click.command("demo")
-@click.option("--uavs", "--vehicles", "uavs", type=int, default=3, show_default=True, help="Mock vehicles.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Where the targets hide, and the policy's draws.")
+@click.option("--uavs", "--vehicles", "uavs", type=whole(1, 50), default=3, show_default=True, help="Mock vehicles.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Where the targets hide, and the policy's draws.")
 @click.option(
     "--out", type=click.Path(path_type=Path), default=None, help="Recording folder (default runs/demo-YYYYmmdd-HHMMSS)."
 )
@@ -92,17 +94,17 @@ def view_options(func):
 )
 @click.option(
     "--speedup",
-    type=float,
+    type=real(0, 100, above=True),
     default=10.0,
     show_default=True,
     help="Mock physics runs this many times faster than the wall clock. The controller's own time per "
     "round is multiplied too, in mock time: higher values cost the mock batteries more per step.",
 )
-@click.option("--targets", type=int, default=None, help="Hidden targets (default: one per vehicle).")
+@click.option("--targets", type=whole(1), default=None, help="Hidden targets (default: one per vehicle).")
 @click.option("--end-action", type=click.Choice(END_ACTIONS), default="rtl", show_default=True)
 @click.option(
     "--time-limit",
-    type=float,
+    type=real(*TimingTable.bounds("time_limit")),
     default=DEMO_SETTINGS["time_limit"],
     show_default=True,
     help="Search time limit, seconds.",
@@ -120,6 +122,23 @@ def view_options(func):
     help="Upload the area's boundary to every mock vehicle as its geofence before take-off "
     "(also on when the --mission file says fence = true).",
 )
+@click.option(
+    "--channel",
+    type=click.Choice(CHANNELS),
+    default="ideal",
+    show_default=True,
+    help="Knowledge between the vehicles' agents (shared in this process): ideal, none, model (the "
+    "simulator's distance-based loss at the grid's cell size) or fixed (--loss).",
+)
+@click.option(
+    "--loss", type=real(0.0, 1.0), default=0.0, show_default=True, help="Packet-loss probability for --channel fixed."
+)
+@click.option(
+    "--no-detectors",
+    is_flag=True,
+    help="Mock vehicles without detectors: a coverage search (cells explored from the vehicles' positions, "
+    "nothing found).",
+)
 @view_options
 def demo_command(
     uavs: int,
@@ -133,31 +152,28 @@ def demo_command(
     time_limit: float,
     gcs: str | None,
     fence: bool,
+    channel: str,
+    loss: float,
+    no_detectors: bool,
     quiet: bool,
     no_live: bool,
 ) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
     Targets are hidden in the mock vehicles' simulated detectors; the controller finds them with the
-    policy, hovers over them, then carries out the end action. Writes the recording (mission.tlog,
-    events.jsonl, summary.json, grid.npz) and mission.png to --out.
+    policy, hovers over them, then carries out the end action. The vehicles' agents share knowledge in
+    this process (--channel: with the simulator's losses). Writes the recording (mission.tlog,
+    events.jsonl, knowledge.jsonl, summary.json, grid.npz) and mission.png to --out.
     """
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
-    from swarmctl.mission.plan import load_grid
+    from swarmctl.mission.plan import check_grid_size, load_grid
     from swarmctl.mission.service import LiveView, draw_mission, run_controller
     from swarmctl.mission.spec import GroundStation, load_spec, parse_option
     from swarmctl.replay.truth import write_truth
     from swarmctl.sim.swarm import SimSwarm
+    from swarmctl.world.channel import Channel
 
-    if not 1 <= uavs <= 50:
-        raise InputError(f"--uavs {uavs}: the demo flies 1..50 mock vehicles")
-    if not speedup > 0:
-        raise InputError(f"--speedup {speedup}: must be a number > 0")
-    if not time_limit > 0:
-        raise InputError(f"--time-limit {time_limit}: must be a number of seconds > 0")
-    if targets is not None and targets < 1:
-        raise InputError(f"--targets {targets}: hide at least one target")
     settings: dict[str, Any] = dict(end_action=end_action, time_limit=time_limit)
     if gcs is not None:
         settings["gcs"] = parse_option(GroundStation, gcs, "--gcs")
@@ -182,9 +198,16 @@ def demo_command(
         grid = GeoGrid.load(grid_file)
         settings["grid"] = grid_file
         at = {}
+    check_grid_size(grid, f"demo: the grid of {mission_file or DEMO_GRID}")
+    room = int(grid.largest_free_region().sum()) - uavs  # targets hide there, never on a launch cell
+    if targets is not None and targets > room:
+        raise InputError(f"--targets {targets}: the grid's largest free region holds {room} besides the launch cells")
     folder = _out_folder(out, "demo")
+    model = Channel(channel, cell_size=grid.cell, loss=loss)
     try:
-        swarm = SimSwarm(grid, uavs=uavs, seed=seed, speedup=speedup, **at)
+        swarm = SimSwarm(
+            grid, uavs=uavs, seed=seed, speedup=speedup, channel=model, carry_detectors=not no_detectors, **at
+        )
         if targets is not None and targets != uavs:
             from swarmctl.sim.swarm import hide_targets
 
@@ -196,7 +219,8 @@ def demo_command(
         if not quiet:
             click.echo(
                 f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
-                f"hidden targets (seed {seed}), policy {field_policy.spec}, speed-up {speedup:g}x"
+                f"hidden targets (seed {seed}){', no detectors: a coverage search' if no_detectors else ''}, "
+                f"policy {field_policy.spec}, knowledge channel {channel}, speed-up {speedup:g}x"
                 f"{', geofence on' if plan.spec.mission.fence else ''} -> {folder}",
                 err=True,
             )
@@ -209,7 +233,7 @@ def demo_command(
                 "hidden_targets": swarm.targets.tolist(),
                 "speedup": speedup,
                 "seed": seed,
-                "knowledge_radio": {"forwarded": swarm.radio.forwarded, "lost": swarm.radio.dropped},
+                "knowledge_bus": c.bus.counters(),
             },
         )
     draw_mission(folder, grid, swarm.targets)
@@ -225,7 +249,7 @@ def demo_command(
     default=None,
     help="Recording folder (default runs/<mission name>-YYYYmmdd-HHMMSS).",
 )
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of the policy's random draws.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the policy's random draws.")
 @view_options
 def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
     """Fly a mission with real vehicles (ground mode: this process flies every vehicle)."""
@@ -234,12 +258,12 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
     from swarmctl.mission.spec import load_spec
 
     plan = make_plan(load_spec(mission_file), seed=seed, mission_file=mission_file)
+    folder = _out_folder(out, plan.spec.mission.name)
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly this mission?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    folder = _out_folder(out, plan.spec.mission.name)
     code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
     _finish(code, folder, summary, quiet)
 
@@ -256,12 +280,13 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
 @click.option(
     "--detector",
     default=None,
-    help="Local UDP socket the onboard detector writes its TUNNEL reports to, udp:HOST:PORT "
-    "(default: reports arrive on the vehicle's MAVLink link).",
+    help="The vehicle's detector: mavlink (its TUNNEL reports come on the vehicle's MAVLink link) or "
+    "udp:HOST:PORT (a local socket it writes them to). Default: the mission's [[vehicles]] detector; "
+    "none there: a coverage search.",
 )
 @click.option("--yes", is_flag=True, help="Fly without asking for confirmation.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Recording folder.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True)
 @view_options
 def agent_command(
     mission_file: Path,
@@ -273,18 +298,19 @@ def agent_command(
     quiet: bool,
     no_live: bool,
 ) -> None:
-    """Onboard mode: fly one vehicle (on its companion computer); peers over the knowledge channel."""
+    """Onboard mode: fly one vehicle (on its companion computer); peers over the [knowledge] channel,
+    which the mission must give."""
     from swarmctl.mission.plan import make_plan
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
 
     spec = load_spec(mission_file)
     plan = make_plan(spec, only=list(vehicles), detector=detector, seed=seed, mission_file=mission_file)
+    folder = _out_folder(out, f"{plan.spec.mission.name}-{'-'.join(vehicles)}")
     for line in describe(plan):
         click.echo(line)
     if not yes and not click.confirm("Fly?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    folder = _out_folder(out, f"{plan.spec.mission.name}-{'-'.join(vehicles)}")
     code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
     _finish(code, folder, summary, quiet)

@@ -25,10 +25,9 @@ import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_polygon
-from swarmctl.knowledge.exchange import KnowledgeExchange
-from swarmctl.knowledge.model import Knowledge
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.gcs import GcsForwarder
+from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
 from swarmctl.mission.flight import cancel
@@ -36,28 +35,10 @@ from swarmctl.mission.launch import start
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 from swarmctl.mission.rounds import search
+from swarmctl.mission.sharing import link_outlet, make_bus, open_exchange
 from swarmctl.world.guard import SafetyGuard
 
 log = logging.getLogger(__name__)
-
-
-class _TapSocket:
-    """Wraps a KnowledgeExchange's socket so the recorder sees every datagram in and out."""
-
-    def __init__(self, sock: Any, recorder: Recorder):
-        self._sock, self._rec = sock, recorder
-
-    def sendto(self, data: bytes, addr: Any) -> int:
-        self._rec.datagram(data)
-        return self._sock.sendto(data, addr)
-
-    def recvfrom(self, size: int) -> tuple[bytes, Any]:
-        data, addr = self._sock.recvfrom(size)
-        self._rec.datagram(data)
-        return data, addr
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._sock, name)
 
 
 class Controller:
@@ -82,6 +63,7 @@ class Controller:
         self.connector: Any = None  # swarmctl.mavlink.connect.Connector, made by _open
         self.mission_error: InputError | None = None  # what stopped the mission: raised by run()
         self.sources: list[UdpSensorSource] = []
+        self.bus = make_bus(plan)  # ground mode: the agents share in memory (None: onboard, the channel)
         gcs = plan.spec.mission.gcs
         self.gcs = GcsForwarder(gcs.host, gcs.port) if gcs is not None else None
         self.step = 0
@@ -89,6 +71,7 @@ class Controller:
         self.started = time.monotonic()
         self.search_started: float | None = None
         self.ended: float | None = None
+        self.on_targets: list[tuple[int, int]] = []  # the cells hovered on when the search ended
         self.decide_times: list[float] = []
         self.round_times: list[float] = []
         self.wait_times: list[float] = []  # per round: waiting for vehicles to arrive and for detectors
@@ -153,20 +136,14 @@ class Controller:
                 continue
             self.connector.expect(spec.connection)
             feed = SensorFeed(i, plan.spec.mission.id, w, h)
-            if i in plan.detectors:
-                socket = plan.detectors[i]
-                self.sources.append(UdpSensorSource(feed, socket.host, socket.port).start())
-            channel = plan.spec.knowledge.channel
-            exchange = KnowledgeExchange(
-                Knowledge(w, h, vehicle_id=i),
-                plan.spec.mission.id,
-                (channel.host, channel.port),
-                system_id=spec.sysid,
-                digest_every=plan.spec.knowledge.digest_every,
-                push=plan.spec.knowledge.push,
-            )
-            exchange.sock = _TapSocket(exchange.sock, self.rec)
-            self.agents.append(Agent(i, spec, NotConnected(spec.name), exchange, feed))
+            detector = plan.detectors.get(i)
+            if detector is not None and not isinstance(detector, str):  # a local socket, not its link
+                self.sources.append(UdpSensorSource(feed, detector.host, detector.port).start())
+            exchange = open_exchange(plan, i, spec, self.rec, self.bus)
+            agent = Agent(i, spec, NotConnected(spec.name), exchange, feed, detector=detector)
+            if self.bus is not None:
+                exchange.outlet = link_outlet(agent)  # its frames once, on its own vehicle's link
+            self.agents.append(agent)
 
     def _watch_link(self, link: Any) -> None:
         """A link the connector opened: record it, count its losses, follow its vehicles, forward it."""
@@ -252,6 +229,7 @@ class Controller:
         if self.outcome is None:
             self.outcome = "interrupted" if self.stopping else "failed"
         self.ended = time.monotonic()
+        self.on_targets = [a.cell for a in self.agents if a.state is State.HOVER and a.cell is not None]
         for a in self.agents:
             if a.rejoin_task is not None:
                 a.rejoin_task.cancel()
@@ -294,8 +272,9 @@ class Controller:
                 await a.vehicle.land()
             elif action == "rtl":
                 await a.vehicle.rtl()
-            if action in ("land", "rtl") and plan.spec.timing.end_timeout > 0:
-                await a.vehicle.wait_landed(plan.spec.timing.end_timeout)
+            wait = timeouts.end(plan.spec.timing.end_timeout, a.vehicle, action, plan.spec.mission.altitude)
+            if action in ("land", "rtl") and wait > 0:
+                await a.vehicle.wait_landed(wait)
                 a.end_state = "landed at home" if action == "rtl" else "landed"
             else:
                 a.end_state = "hovering on target" if a.state is State.HOVER else "hovering"
@@ -355,7 +334,7 @@ class Controller:
                     end_state=a.end_state,
                     cell=a.cell,
                     steps=a.steps,
-                    distance_m=round(a.distance, 1),
+                    distance_3d_m=round(a.distance, 1),
                     refused_moves=a.refused,
                     step_timeouts=a.timeouts,
                     sensor_reports=a.feed.reports,
@@ -367,10 +346,17 @@ class Controller:
                 )
             )
         links = [
-            dict(connection=str(k), sent=v.stats.sent, received=v.stats.received, bad_data=v.stats.bad_data)
+            dict(
+                connection=str(k),
+                sent=v.stats.sent,
+                received=v.stats.received,
+                bad_data=v.stats.bad_data,
+                console_bytes=v.stats.console_bytes,
+            )
             for k, v in self.links.items()
         ]
-        hovering = [a.cell for a in self.agents if a.state is State.HOVER or a.end_state == "hovering on target"]
+        # who hovered where when the search ended (a vehicle's end action may have brought it home since)
+        hovering = self.on_targets if self.ended else [a.cell for a in self.agents if a.state is State.HOVER]
         out = dict(
             mission=self.plan.spec.mission.name,
             policy=self.plan.policy.spec,
@@ -379,7 +365,7 @@ class Controller:
                 dict(cell=list(c), lat=self.grid.cell_to_latlon(*c)[0], lon=self.grid.cell_to_latlon(*c)[1], step=s)
                 for c, s in sorted(found.items())
             ],
-            vehicles_on_targets=[list(c) for c in hovering if c is not None],
+            vehicles_on_targets=[list(c) for c in hovering],
             time_s=round(now - self.started, 2),
             search_time_s=round(now - self.search_started, 2) if self.search_started else 0.0,
             steps=self.step,

@@ -1,9 +1,10 @@
 """Sensing for the controller: what a vehicle's field of view covers, as MAVLink TUNNEL payloads.
 
-The controller never reads the truth. A detector (simulated here, onboard software on a real
-vehicle) reports, for the cell the vehicle hovers over, the cells its field of view covers with
-their value phi and obstacle flag, and the target cells it sees. It uses two of the knowledge
-codec's payload kinds (swarmctl/mavlink/knowledge_codec.py), sent by the vehicle:
+The controller never reads the truth, and explores cells from the vehicle's position whether or not
+it has a detector (swarmctl.mission.sensing). A detector (simulated: swarmctl.sim.detector; onboard
+software on a real vehicle) adds what it sees from the cell the vehicle hovers over: the target
+cells, and optionally the cells of its field of view with their value phi and obstacle flag. It uses
+two of the knowledge codec's payload kinds (swarmctl/knowledge/codec.py), sent by the vehicle:
 
     DETECTION (TUNNEL.payload_type 32803)  the target cells in view (only sent when there are some)
     DELTA     (TUNNEL.payload_type 32800)  the cells in view: cell index, obstacle bit, phi * 255
@@ -11,14 +12,18 @@ codec's payload kinds (swarmctl/mavlink/knowledge_codec.py), sent by the vehicle
 with the knowledge header's sender = the vehicle's index in the mission (0-based order of
 [[vehicles]]), sender x, y = the cell the report is for, step = a report counter, and the mission id
 and grid size of the mission (reports for another mission or grid are rejected). DETECTION comes
-first, so when the DELTA arrives the report for that cell is complete.
+first, so when the DELTA arrives the report for that cell is complete (a DELTA with no cells says
+"seen from here, nothing more").
 
-Two ways in, both read by `SensorFeed`:
-- on the vehicle's own MAVLink link (ArduPilot: an onboard computer or camera component sending
-  TUNNEL frames through the autopilot's routing); the feed accepts them only from that system id;
-- a local UDP socket (`swarmctl agent --detector udp:127.0.0.1:14650`), one MAVLink 2 TUNNEL frame
-  or several per datagram, for a detector process running next to the agent (PX4 through MAVSDK has
-  no way to hand TUNNEL messages to the controller, so PX4 vehicles use this path).
+Two ways in (the vehicle's `detector` key), both read by `SensorFeed`:
+- `detector = "mavlink"`: on the vehicle's own MAVLink link (ArduPilot: an onboard computer or camera
+  component sending TUNNEL frames through the autopilot's routing); the feed accepts them only from
+  that system id;
+- `detector = "udp:127.0.0.1:14650"` (or `swarmctl agent --detector ...`): a local UDP socket, one
+  MAVLink 2 TUNNEL frame or several per datagram, for a detector process running next to the agent
+  (PX4 through MAVSDK has no way to hand TUNNEL messages to the controller, so PX4 vehicles use this).
+With a detector the controller waits, after each cell reached, up to `[timing] sense_timeout` for its
+report; a report that comes anyway (late, or from a vehicle given no detector) is used when it comes.
 
 The simulated detector the mock vehicles carry (it writes these reports) is
 swarmctl.sim.detector.SimDetector.
@@ -30,6 +35,7 @@ import asyncio
 import logging
 import socket
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -53,13 +59,18 @@ class SensorReport:
     targets: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
 
 
+NEW_REPORTS_KEPT = 256  # reports waiting for take_new (a detector repeats its report while the vehicle stays)
+
+
 class SensorFeed:
-    """Collects one vehicle's detector reports (from its MAVLink link or a local socket)."""
+    """Collects one vehicle's detector reports (from its MAVLink link or a local socket): the latest
+    report per cell (`wait_report`) and every report since the last `take_new`."""
 
     def __init__(self, vehicle_index: int, mission_id: int, width: int, height: int):
         self.vehicle_index = int(vehicle_index)
         self.codec = KnowledgeCodec(mission_id, width, height)
         self.latest: dict[tuple[int, int], SensorReport] = {}
+        self._new: deque[SensorReport] = deque(maxlen=NEW_REPORTS_KEPT)
         self._targets: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._changed: asyncio.Event | None = None
         self.reports = 0
@@ -87,9 +98,9 @@ class SensorFeed:
         seen = self._targets.get(message.cell)
         if seen is not None and now - seen[0] < 5.0:
             targets = seen[1]
-        self.latest[message.cell] = SensorReport(
-            message.cell, now, message.cells, dequantise_phi(message.phi), message.obstacle, targets
-        )
+        report = SensorReport(message.cell, now, message.cells, dequantise_phi(message.phi), message.obstacle, targets)
+        self.latest[message.cell] = report
+        self._new.append(report)
         self.reports += 1
         if self._changed is not None:
             self._changed.set()
@@ -102,6 +113,12 @@ class SensorFeed:
                 self.on_tunnel(msg.payload_type, bytes(msg.payload), msg.payload_length)
 
         return on_message
+
+    def take_new(self) -> list[SensorReport]:
+        """Every complete report received since the last call (oldest first), late ones included."""
+        out = list(self._new)
+        self._new.clear()
+        return out
 
     # --- waiting ---------------------------------------------------------------------------------------
     async def wait_report(

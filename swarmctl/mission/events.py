@@ -8,8 +8,9 @@ some) and kinds it does not name are skipped; `check_event(..., strict=True)` al
 a test can hold a fresh recording to the table.
 
 Field kinds: `int`, `number` (int or float), `str`, `bool`, `cell` ([x, y] grid indices, ints >= 0),
-`cells` (a list of cells), `latlon` ([lat, lon] degrees), `latlons` (a list of them), `numbers`,
-`strs`, and `records NAME` (a list of objects following the record schema NAME below).
+`cells` (a list of cells), `xy` ([x, y] ints of any sign: a cell that may lie off the grid), `latlon`
+([lat, lon] degrees), `latlons` (a list of them), `numbers`, `strs`, and `records NAME` (a list of
+objects following the record schema NAME below).
 """
 
 from __future__ import annotations
@@ -121,6 +122,28 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             ),
         ),
     ),
+    "preflight": (
+        "events.jsonl",
+        "what a vehicle said (its STATUSTEXT) or still lacked (`waiting for ...`) while it got ready to arm; "
+        "a text is not repeated within 10 s",
+        (_VEHICLE, _SYSID, Field("text", "str", "-", "the text, e.g. `PreArm: Need Position Estimate`")),
+    ),
+    "limits": (
+        "events.jsonl",
+        "a vehicle's speeds, read at preflight, and the timeouts flown with (the mission's where it sets them)",
+        (
+            _VEHICLE,
+            _SYSID,
+            Field("read", "strs", "-", "the speed parameters read (empty: the firmware's defaults)"),
+            Field("speed", "number", "m/s", "horizontal speed to a target"),
+            Field("climb", "number", "m/s", "climb rate"),
+            Field("descent", "number", "m/s", "descent rate"),
+            Field("land_speed", "number", "m/s", "the landing's final descent rate"),
+            Field("takeoff_timeout", "number", "s", "arming and climbing to the mission's altitude"),
+            Field("step_timeout", "number", "s", "a step of one cell (the derived ones follow each move's distance)"),
+            Field("end_timeout", "number", "s", "the end action's landing (derived: from the grid's far corner)"),
+        ),
+    ),
     "fence": (
         "events.jsonl",
         "a vehicle's fence upload (before take-off, and before a grounded vehicle rejoins)",
@@ -139,7 +162,7 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
     ),
     "targets": (
         "events.jsonl",
-        "targets a vehicle's detector reported for the first time",
+        "targets a vehicle's detector reported for the first time (within the footprint of a cell it reached)",
         (
             _VEHICLE,
             Field("cells", "cells", "cells", "the target cells"),
@@ -154,7 +177,7 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             _VEHICLE,
             _STEP,
             Field("cell", "cell", "cells", "where the vehicle was"),
-            Field("proposed", "cell", "cells", "the cell the policy wanted"),
+            Field("proposed", "xy", "cells", "the cell the policy wanted (off the grid when the move left it)"),
             Field("reason", "str", "-", "why (outside, blocked, contested ...)"),
         ),
     ),
@@ -165,8 +188,15 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
     ),
     "no_report": (
         "events.jsonl",
-        "no detector report arrived for a cell the vehicle reached (sense timeout)",
+        "no report from the vehicle's detector arrived for a cell the vehicle reached (sense timeout); "
+        "the cell's footprint is explored all the same, and a late report counts when it comes",
         (_VEHICLE, Field("cell", "cell", "cells", "the cell"), _STEP),
+    ),
+    "report_dropped": (
+        "events.jsonl",
+        "detector reports of a round named cells or targets outside the footprints of the cells the vehicle "
+        "reached (or a cell it never reached): those were not used",
+        (_VEHICLE, _STEP, Field("dropped", "int", "-", "cells and targets dropped this round")),
     ),
     "step": (
         "events.jsonl",
@@ -259,6 +289,7 @@ _CHECKS = {
     "bool": lambda v: isinstance(v, bool),
     "cell": _is_cell,
     "cells": lambda v: isinstance(v, list) and all(_is_cell(c) for c in v),
+    "xy": lambda v: isinstance(v, list) and len(v) == 2 and all(_is_int(c) for c in v),
     "latlon": _is_latlon,
     "latlons": lambda v: isinstance(v, list) and all(_is_latlon(c) for c in v),
     "numbers": lambda v: isinstance(v, list) and all(_is_number(c) for c in v),

@@ -1,21 +1,28 @@
 """Flying one agent's vehicle to a cell, and sensing and sharing what it sees there.
 
 Used by the launch (the first cell), the rounds (every move) and a rejoin. Every setpoint is a
-guarded cell's centre at the mission altitude (the guard's `setpoint_altitude`).
+guarded cell's centre at the mission altitude (the guard's `setpoint_altitude`). Sensing is from
+the vehicle's position (swarmctl.mission.sensing): the footprint round each cell reached is explored,
+and a detector's reports add targets.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
+from swarmctl.mission.sensing import sense
 
 if TYPE_CHECKING:
     from swarmctl.mission.controller import Controller
+
+log = logging.getLogger(__name__)
 
 _FAR = np.iinfo(np.int64).max
 
@@ -46,18 +53,22 @@ def nearest_free(c: Controller, start: tuple[int, int], exclude: Agent | None = 
     return (flat // h, flat % h)
 
 
-async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float) -> bool:
-    """Send the position target for the cell centre at the mission altitude; wait until reached (False
-    after `timeout`, or at once when the link is lost or the mission is stopped)."""
+async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | None) -> bool:
+    """Send the position target for the cell centre at the mission altitude and wait until it is
+    reached, for `timeout` seconds (None: derived from the vehicle's speeds and the distance to the
+    cell, timeouts.move). False only when that time ran out: a wait cut short because the link was
+    lost or the mission stopped returns True at once (it is not a step timeout)."""
     if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
         raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
     lat, lon = c.grid.cell_to_latlon(*cell)
-    await a.vehicle.goto(lat, lon, c.guard.setpoint_altitude())
+    alt = c.guard.setpoint_altitude()
+    timeout = timeouts.move(timeout, a.vehicle, lat, lon, alt)
+    await a.vehicle.goto(lat, lon, alt)
     task = asyncio.ensure_future(a.vehicle.wait_reached(c.plan.spec.flight.reach_tolerance, timeout))
     try:
         while not task.done():
             if a.vehicle.lost or c.stopping:
-                return False
+                return True
             await asyncio.wait({task}, timeout=0.1)
         return task.exception() is None
     finally:
@@ -68,34 +79,46 @@ async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float) ->
 
 
 async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
-    """Sense (when the vehicle reached a new cell) and publish; returns the targets it saw."""
+    """Sense (the footprint round the cell reached, when the vehicle arrived somewhere new; with a
+    detector, after waiting for its report there) and publish; returns the targets it saw."""
     kn, ex = a.knowledge, a.exchange
+    if a.cell is None:
+        return []
     on_target = a.state is State.HOVER
-    found: list[tuple[int, int]] = []
-    if moved and a.cell is not None:
-        report = await a.feed.wait_report(
-            a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
-        )
-        if report is None:
-            c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)
-            ex.step(c.step, a.cell, on_target)
-        else:
-            found = [tuple(int(v) for v in t) for t in report.targets]
-            fresh = [t for t in found if t not in kn.targets]
-            ex.step(
-                c.step,
-                a.cell,
-                on_target,
-                report.cells,
-                report.phi,
-                report.obstacle,
-                targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
+    if moved:
+        a.visited.add(a.cell)
+        if a.detector is not None:
+            report = await a.feed.wait_report(
+                a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
             )
-            if fresh:
-                latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
-                c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
-    elif a.cell is not None:
-        ex.step(c.step, a.cell, on_target)
+            if report is None:
+                c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)
+    reports = a.feed.take_new()
+    if reports and a.detector is None and not a.unexpected_reports:
+        a.unexpected_reports = True
+        log.warning(
+            "%s: detector reports arrive on its link although the mission gives it no detector; they are used, "
+            'but the controller does not wait for them: add detector = "mavlink" to its [[vehicles]] table',
+            a.name,
+        )
+    sensed = sense(c.grid, c.plan.fov, a.cell if moved else None, reports, a.visited)
+    if sensed.dropped:
+        a.sensor_dropped += sensed.dropped
+        c.rec.event("report_dropped", vehicle=a.name, step=c.step, dropped=sensed.dropped)
+    found = [(int(x), int(y)) for x, y in sensed.targets]
+    fresh = [t for t in found if t not in kn.targets]
+    ex.step(
+        c.step,
+        a.cell,
+        on_target,
+        sensed.cells,
+        sensed.phi,
+        sensed.obstacle,
+        targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
+    )
+    if fresh:
+        latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
+        c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
     return found
 
 

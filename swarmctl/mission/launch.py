@@ -1,21 +1,27 @@
 """Getting one agent's vehicle into the search: connect, preflight, fence, take-off, the first cell;
 and back into it after a link loss (rejoin).
 
-Each vehicle goes through these on its own (a slow one delays only itself); take-offs are spaced by
-`flight.takeoff_at_once`. A failure fails that vehicle only, except a vehicle whose autopilot
-contradicts the mission file, which stops the mission (the file must change).
+Each vehicle goes through these on its own (a slow one delays only itself); the preflights run at
+once, the take-offs are spaced by `flight.takeoff_at_once`. Preflight waits until the vehicle can arm
+in the mode it is flown in (its driver's `wait_ready`: ArduPilot switches to GUIDED first), showing
+what the vehicle says meanwhile (`note`: an event, a log line, the live view), then reads its speed
+parameters, from which the waits the mission does not set are derived (timeouts.py). A failure fails
+that vehicle only, except a vehicle whose autopilot contradicts the mission file, which stops the
+mission (the file must change).
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from typing import TYPE_CHECKING, Any
 
 from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_contains
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission import timeouts
 from swarmctl.mission.agent import AIRBORNE_M, Agent, State
 from swarmctl.mission.flight import fly, nearest_free, sense_and_share
 
@@ -23,6 +29,8 @@ if TYPE_CHECKING:
     from swarmctl.mission.controller import Controller
 
 log = logging.getLogger(__name__)
+
+NOTE_REPEAT_S = 10.0  # a preflight note repeated within this long is not shown again
 
 
 async def connect(c: Controller, a: Agent) -> None:
@@ -58,7 +66,9 @@ async def start(c: Controller, a: Agent) -> None:
         if c.stopping:
             return
         c.enter(a, State.PREFLIGHT)
-        await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout))
+        await c.until_stopped(preflight(c, a))
+        if c.stopping:
+            return
         battery = a.battery()
         needed = c.plan.spec.battery.takeoff_min
         if battery is not None and battery < needed:
@@ -75,7 +85,9 @@ async def start(c: Controller, a: Agent) -> None:
             if c.stopping:
                 return
             c.enter(a, State.TAKEOFF)
-            await c.until_stopped(a.vehicle.arm_and_takeoff(c.plan.spec.mission.altitude, timing.takeoff_timeout))
+            altitude = c.plan.spec.mission.altitude
+            wait = timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
+            await c.until_stopped(a.vehicle.arm_and_takeoff(altitude, wait))
             if c.stopping:
                 return
             # the first cell: the home cell, or the nearest free one nobody holds yet
@@ -87,6 +99,50 @@ async def start(c: Controller, a: Agent) -> None:
     except (TimeoutError, MavlinkError) as exc:
         a.error = str(exc)
         c.enter(a, State.FAILED, error=str(exc))
+
+
+async def preflight(c: Controller, a: Agent) -> None:
+    """Wait until the vehicle can arm in the mode it is flown in, its reports shown as they come
+    (NotReady after ready_timeout names the last one); then read its speed parameters and record
+    them with the timeouts they give (event "limits": a step of one cell, and the end action from
+    the far corner of the grid)."""
+    timing, m = c.plan.spec.timing, c.plan.spec.mission
+    await a.vehicle.wait_ready(timing.ready_timeout, report=lambda text: note(c, a, text))
+    limits = await a.vehicle.read_limits()
+    across = math.hypot(c.grid.width, c.grid.height) * c.grid.cell
+    if timing.end_timeout is not None:
+        end = timing.end_timeout
+    elif m.end_action == "land":
+        end = limits.land_timeout(m.altitude)
+    else:
+        end = limits.rtl_timeout(across, m.altitude)
+    c.rec.event(
+        "limits",
+        vehicle=a.name,
+        sysid=a.spec.sysid,
+        read=list(limits.read),
+        speed=round(limits.speed, 3),
+        climb=round(limits.climb, 3),
+        descent=round(limits.descent, 3),
+        land_speed=round(limits.land_speed, 3),
+        takeoff_timeout=round(timeouts.takeoff(timing.takeoff_timeout, a.vehicle, m.altitude), 1),
+        step_timeout=round(limits.move_timeout(c.grid.cell) if timing.step_timeout is None else timing.step_timeout, 1),
+        end_timeout=round(end, 1),
+    )
+
+
+def note(c: Controller, a: Agent, text: str) -> None:
+    """What the vehicle says (or still lacks) while it gets ready: recorded (event "preflight"), logged
+    and shown in the live view; the same text within NOTE_REPEAT_S is shown once."""
+    now = time.monotonic()
+    if now - a.notes.get(text, -math.inf) < NOTE_REPEAT_S:
+        return
+    a.notes[text] = now
+    a.status = text
+    c.rec.event("preflight", vehicle=a.name, sysid=a.spec.sysid, text=text)
+    log.info("%s: %s", a.name, text)
+    if c.view is not None:
+        c.view(c)
 
 
 async def upload_fence(c: Controller, a: Agent, home: Any) -> None:
@@ -122,12 +178,13 @@ async def rejoin(c: Controller, a: Agent) -> None:
             await a.vehicle.resume()
         else:
             if c.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
-                await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout))
+                await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout, report=lambda t: note(c, a, t)))
                 if a.vehicle.home is None:
                     raise MavlinkError(f"{a.name}: no home position")
                 await upload_fence(c, a, a.vehicle.home)
+            altitude = c.plan.spec.mission.altitude
             async with c.takeoff_slots:
-                await a.vehicle.arm_and_takeoff(c.plan.spec.mission.altitude, timing.takeoff_timeout)
+                await a.vehicle.arm_and_takeoff(altitude, timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude))
         pos = a.vehicle.position
         here = c.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
         if here is None or not c.grid.in_grid(*here):
@@ -136,7 +193,7 @@ async def rejoin(c: Controller, a: Agent) -> None:
         cell = nearest_free(c, here, exclude=a)
         a.cell = cell
         since = time.monotonic()
-        await fly(c, a, cell, timing.step_timeout * 3)
+        await fly(c, a, cell, None if timing.step_timeout is None else timing.step_timeout * 3)
         await sense_and_share(c, a, moved=True, since=since)
         c.enter(a, State.SEARCH, rejoined=True)
     except asyncio.CancelledError:

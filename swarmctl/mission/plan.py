@@ -8,7 +8,9 @@
 - refuses a mission flying below the grid's planning altitude (the grid blocks only the buildings at
   least that tall) or with a cell size other than the grid's, and a footprint more than 0.25 cell
   from the fov the policy was trained with;
-- builds the policy once (loading its checkpoint): the plan keeps the object, the controller uses it.
+- builds the policy once (loading its checkpoint): the plan keeps the object, the controller uses it;
+- refuses an onboard plan (some vehicles only: `swarmctl agent`) without a `[knowledge] channel`: its
+  agents share knowledge with the other processes' agents only through it.
 
 The plan's spec is the resolved one: every value the controller reads is in it, once.
 """
@@ -22,6 +24,7 @@ from typing import Any
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
+from swarmctl.knowledge.codec import MAX_CELLS, MAX_SIDE
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
 
@@ -31,17 +34,26 @@ FOOTPRINT_TOLERANCE = 0.25  # cells: how far the footprint may be from the polic
 @dataclass
 class MissionPlan:
     """Everything the controller needs to fly: the resolved spec, the grid, the policy (built once) and
-    what this process adds: the vehicles it flies (`only`, mission indices; None: all), their detector
-    sockets, the seed of the policy's draws, and the mission file (copied into the recording)."""
+    what this process adds: the vehicles it flies (`only`, mission indices; None: all, the ground mode),
+    their detectors, the seed of the policy's draws, the mission file (copied into the recording) and,
+    for simulated swarms, the channel model of the in-process knowledge bus (None: ideal)."""
 
     spec: MissionSpec
     grid: Any  # swarmctl.geo.GeoGrid
     policy: Any  # swarmctl.mission.decide.FieldPolicy
     signing_key: bytes | None = None
-    detectors: dict[int, Endpoint] = field(default_factory=dict)  # vehicle index -> local UDP socket
+    # vehicle index -> its detector: ON_LINK (reports on its MAVLink link) or a local UDP socket
+    detectors: dict[int, Endpoint | str] = field(default_factory=dict)
     only: list[int] | None = None
     seed: int = 0
     mission_file: Path | None = None
+    bus_channel: Any = None  # swarmctl.world.channel.Channel of the ground mode's bus; None: ideal
+
+    @property
+    def onboard(self) -> bool:
+        """This process flies some of the vehicles only (`swarmctl agent`): knowledge goes over the
+        [knowledge] channel. Otherwise (ground mode) it flies every vehicle and shares in memory."""
+        return self.only is not None
 
     @property
     def fov(self) -> float:
@@ -61,8 +73,9 @@ def make_plan(
     mission_file: Path | None = None,
 ) -> MissionPlan:
     """The plan for `spec`: `grid` and `policy` when the caller has them already (the demo), else
-    loaded here; `only` keeps some vehicles by name (onboard mode); `detector` (udp:HOST:PORT) is the
-    detector socket of every vehicle kept. Every refusal is an InputError naming the mission file."""
+    loaded here; `only` keeps some vehicles by name (onboard mode: the mission must have a [knowledge]
+    channel); `detector` ("mavlink" or udp:HOST:PORT) is the detector of every vehicle kept. Every
+    refusal is an InputError naming the mission file."""
     where = str(mission_file) if mission_file is not None else "mission"
     m = spec.mission
     grid = grid if grid is not None else load_grid(spec)
@@ -82,15 +95,25 @@ def make_plan(
         if name not in names:
             raise InputError(f"--vehicle {name!r} is not in {where}; use one of {', '.join(names)}")
     keep = [names.index(n) for n in only] if only else list(range(len(names)))
+    if only and spec.knowledge.channel is None:
+        raise InputError(
+            f"{where}: [knowledge] channel is missing, and agents in separate processes (swarmctl agent) share "
+            'knowledge only through it; add [knowledge] channel = "udpout:HOST:PORT" (a MAVLink router or '
+            "telemetry mesh that forwards TUNNEL messages to every vehicle's agent), or fly every vehicle "
+            "from one computer with swarmctl fly"
+        )
     detectors = {i: spec.vehicles[i].detector for i in keep if spec.vehicles[i].detector is not None}
     if detector:
         socket = parse_detector(detector)
         detectors.update({i: socket for i in keep})
     key = None
     if m.signing_key is not None:
+        from swarmctl.bounds import KEY_MAX_BYTES, read_limited
         from swarmctl.mavlink.codec import load_signing_key
 
-        key = load_signing_key(m.signing_key, field=f"{where}: mission.signing_key")
+        key_field = f"{where}: mission.signing_key"
+        read_limited(m.signing_key, "signing key file", KEY_MAX_BYTES, key_field)  # before it is read whole
+        key = load_signing_key(m.signing_key, field=key_field)
     return MissionPlan(
         resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
     )
@@ -128,6 +151,15 @@ def make_policy(text: str, seed: int, where: str) -> Any:
         raise InputError(f"{where}: mission.policy: {exc}") from None
 
 
+def check_grid_size(grid: Any, where: str) -> None:
+    """A grid a mission can fly: no larger than the knowledge messages carry (swarmctl.knowledge.codec)."""
+    if not (grid.width <= MAX_SIDE and grid.height <= MAX_SIDE and grid.width * grid.height <= MAX_CELLS):
+        raise InputError(
+            f"{where} is {grid.width} x {grid.height} cells, more than knowledge sharing carries "
+            f"(at most {MAX_SIDE} a side and {MAX_CELLS:,} in all); re-plan it with a larger `swarmctl plan --cell`"
+        )
+
+
 def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
     """The altitude and cell size to fly: the mission's, checked against the grid's, or the grid's."""
     name = f"the grid {m.grid.name}" if m.grid is not None else "the grid"
@@ -141,6 +173,7 @@ def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
                 f"{where}: {name} has {what} of {value:g} m, outside the {lo:g} to {hi:g} m a mission takes; "
                 f"re-plan it with `swarmctl plan ... {option} N` within that range"
             )
+    check_grid_size(grid, f"{where}: {name}")
     altitude = float(grid.altitude) if m.altitude is None else m.altitude
     if altitude < grid.altitude:
         raise InputError(

@@ -14,12 +14,19 @@ grid.npz         a copy of the grid
 summary.json     targets found, time, steps per vehicle, distance flown, messages sent/lost
 
 Every line's fields, types and units: swarmctl.mission.events (docs/recording.md).
+
+A crash at any moment leaves every file readable up to that moment: each line of events.jsonl and
+knowledge.jsonl is handed to the operating system as it is written (a SIGKILL loses at most a line
+being written, never one already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
+replaced whole (written beside, then renamed over), so it is always one complete summary. The files
+are flushed to the operating system, not synced to the disk: a crash of the machine itself may lose more.
 """
 
 from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
 import struct
 import threading
@@ -33,6 +40,9 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 _TS = struct.Struct(">Q")
+TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (CONTRACTS: at least once a second)
+# Event kinds that change what summary.json says: a running summary is rewritten after each of them.
+CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "end", "end_action", "end_action_failed"})
 
 
 def _jsonable(value: Any) -> Any:
@@ -66,7 +76,17 @@ class Recorder:
         self._parser.robust_parsing = True
         self.packets = 0
         self.events = 0
+        self.changes = 0  # events of CHANGE_KINDS written so far
         self.closed = False
+        self._closing = threading.Event()
+        self._flusher = threading.Thread(target=self._flush_tlog, name="recorder-tlog-flush", daemon=True)
+        self._flusher.start()
+
+    def _flush_tlog(self) -> None:
+        while not self._closing.wait(TLOG_FLUSH_S):
+            with self._lock:
+                if not self.closed:
+                    self._tlog.flush()
 
     # --- MAVLink ---------------------------------------------------------------------------------------
     def packet(self, data: bytes, when: float | None = None) -> None:
@@ -108,12 +128,16 @@ class Recorder:
 
     # --- events ----------------------------------------------------------------------------------------
     def event(self, kind: str, **fields: Any) -> None:
+        """One line of events.jsonl, flushed at once."""
         line = json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=(",", ":"))
         with self._lock:
             if self.closed:
                 return
             self._events.write(line + "\n")
+            self._events.flush()
             self.events += 1
+            if kind in CHANGE_KINDS:
+                self.changes += 1
 
     def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
         """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
@@ -144,6 +168,7 @@ class Recorder:
             if self._knowledge is None:
                 self._knowledge = (self.folder / "knowledge.jsonl").open("w", encoding="utf-8")
             self._knowledge.write("".join(lines))
+            self._knowledge.flush()
         return len(lines)
 
     def flush(self) -> None:
@@ -163,12 +188,21 @@ class Recorder:
         elif grid is not None:
             grid.save(self.folder / "grid.npz")
 
-    def write_summary(self, summary: dict) -> Path:
+    def write_summary(self, summary: dict, running: bool = False) -> Path:
+        """Replace summary.json whole (written beside it, then renamed over it), with `running`: true while
+        the mission goes on, false for the final one."""
         path = self.folder / "summary.json"
-        path.write_text(json.dumps(_jsonable(summary), indent=2) + "\n", encoding="utf-8")
+        text = json.dumps(_jsonable({**summary, "running": running}), indent=2) + "\n"
+        with self._lock:  # one writer at a time: the running summary and the final one share the name
+            partial = path.with_name(f".{path.name}.partial")
+            partial.write_text(text, encoding="utf-8")
+            os.replace(partial, path)
         return path
 
     def close(self) -> None:
+        self._closing.set()
+        if self._flusher is not threading.current_thread():
+            self._flusher.join()
         with self._lock:
             if self.closed:
                 return

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import asyncio
+import logging
+import math
 import signal
 import sys
 import time
@@ -12,10 +14,13 @@ from typing import Any, TextIO
 import numpy as np
 
 from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from swarmctl.mission import sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
+
+log = logging.getLogger(__name__)
 
 OUTCOME_EXIT = {
     "complete": EXIT_OK,
@@ -46,19 +51,21 @@ def describe(plan: MissionPlan) -> list[str]:
         "fence: the area's boundary, uploaded to every vehicle before take-off"
         if m.fence
         else "fence: none (the vehicles' own fence settings apply)",
-        f"knowledge channel {spec.knowledge.channel}",
+        *sharing.describe(plan),
     ]
     for i, v in enumerate(spec.vehicles):
         if plan.only is not None and i not in plan.only:
             continue
         autopilot = v.autopilot or "autopilot as its heartbeat says"
-        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}")
+        detector = sharing.detector_text(plan.detectors.get(i))
+        lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}, {detector}")
     return lines
 
 
 class LiveView:
-    """A table per vehicle (state, cell, battery, link, targets) redrawn each step on a terminal, and a
-    progress line; `live=False` keeps only the progress lines, `quiet=True` prints nothing."""
+    """A table per vehicle (state, cell, battery, link, targets, and in preflight what the vehicle says)
+    redrawn each step on a terminal, and a progress line; `live=False` keeps only the progress lines
+    and a line per preflight note, `quiet=True` prints nothing."""
 
     def __init__(self, stream: TextIO | None = None, live: bool = True, quiet: bool = False, every: float = 2.0):
         stream = stream if stream is not None else sys.stderr  # looked up now: sys.stderr may be replaced
@@ -66,6 +73,7 @@ class LiveView:
         self.live = live and not quiet and stream.isatty()
         self._lines = 0
         self._last = 0.0
+        self._notes: dict[str, str | None] = {}  # vehicle -> the preflight note last printed
 
     def __call__(self, c: Controller) -> None:
         if self.quiet:
@@ -78,7 +86,11 @@ class LiveView:
             f"  -> {c.outcome}" if c.outcome else ""
         )
         if not self.live:
-            if now - self._last >= self.every or c.outcome:
+            for a in c.agents:
+                if a.status is not None and self._notes.get(a.name) != a.status:
+                    self._notes[a.name] = a.status
+                    print(f"{a.name}: {a.status}", file=self.stream, flush=True)
+            if c.search_started and now - self._last >= self.every or c.outcome:
                 self._last = now
                 print(progress, file=self.stream, flush=True)
             return
@@ -86,9 +98,10 @@ class LiveView:
         for a in c.agents:
             cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
             battery = a.battery()
+            says = f"  {a.status[:60]}" if a.state == State.PREFLIGHT and a.status else ""
             rows.append(
                 f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
-                f"{a.link_text():<5} {a.targets_known:>7}"
+                f"{a.link_text():<5} {a.targets_known:>7}{says}"
             )
         rows.append(progress)
         out = (f"\x1b[{self._lines}F\x1b[J" if self._lines else "") + "\n".join(rows) + "\n"
@@ -97,10 +110,33 @@ class LiveView:
         self._lines = len(rows)
 
 
+SUMMARY_EVERY_S = 2.0  # the running summary.json is rewritten this often, and after every state change
+SUMMARY_POLL_S = 0.25  # how soon after a state change
+
+
+async def keep_summary(controller: Controller, rec: Recorder, extra_summary: Any = None) -> None:
+    """Keep summary.json up to date while the mission runs (`"running": true`), so that `watch cat
+    summary.json` follows it and a crash leaves the latest state: rewritten every SUMMARY_EVERY_S and
+    within SUMMARY_POLL_S of every event that changes it (Recorder.changes). Runs until cancelled."""
+    loop = asyncio.get_running_loop()
+    changes, written = -1, -math.inf
+    while True:
+        if rec.changes != changes or loop.time() - written >= SUMMARY_EVERY_S:
+            changes, written = rec.changes, loop.time()
+            try:
+                summary = controller.summary(extra_summary(controller) if extra_summary else None)
+                rec.write_summary(summary, running=True)
+            except Exception as exc:  # the flight goes on without it; the final summary is written at the end
+                log.warning("the running summary.json cannot be written (%s); it is written at the end", exc)
+                return
+        await asyncio.sleep(SUMMARY_POLL_S)
+
+
 def run_controller(
     plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
 ) -> tuple[int, dict]:
-    """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording; exit status."""
+    """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording (summary.json kept up
+    to date while it flies); exit status."""
     rec = Recorder(folder)
     rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
     controller = Controller(plan, rec, view=view)
@@ -114,16 +150,19 @@ def run_controller(
                 installed.append(sig)
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread, or Windows
                 pass
+        summaries = asyncio.ensure_future(keep_summary(controller, rec, extra_summary))
         try:
             return await controller.run()
         finally:
+            summaries.cancel()
+            await asyncio.gather(summaries, return_exceptions=True)
             for sig in installed:
                 loop.remove_signal_handler(sig)
 
     try:
         outcome = asyncio.run(main())
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
-        rec.write_summary(summary)
+        rec.write_summary(summary, running=False)
         write_targets_geojson(folder / "targets.geojson", summary)
         write_targets_kml(folder / "targets.kml", summary)
     finally:

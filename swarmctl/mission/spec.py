@@ -63,9 +63,10 @@ PUSH_UP_TO = 12  # knowledge push is on for swarms of up to this many vehicles (
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # names become parts of recording folder names
 NAME_SPAN = "letters, digits, . _ - (up to 64)"
 # The demo's settings over the defaults (and over a mission file's, with `swarmctl demo --mission`): the
-# simulated world is fast and its vehicles are always there, so decide at once, give up a step sooner,
-# ask for telemetry often, wait less for the landings.
-DEMO_SETTINGS = dict(time_limit=300.0, step_period=0.0, step_timeout=10.0, end_timeout=60.0, telemetry_hz=20.0)
+# simulated world is fast and its vehicles are always there, so decide at once and ask for telemetry
+# often (its timeouts are derived from the mock vehicles' speeds, as a real mission's are).
+DEMO_SETTINGS = dict(time_limit=300.0, step_period=0.0, telemetry_hz=20.0)
+DERIVED = "derived from the vehicle"  # the doc of the timing keys that follow each vehicle's speeds
 DOC_BEGIN, DOC_END = "<!-- mission-spec:begin -->", "<!-- mission-spec:end -->"
 
 
@@ -129,6 +130,25 @@ GroundStation = _connection(
     ("udpout",), "is not a UDP address to send to", "gcs", "udpout:127.0.0.1:14550", " (QGroundControl listens there)"
 )
 DetectorSocket = _connection(("udpin",), "is not a local UDP socket", "detector", "udp:127.0.0.1:14650")
+ON_LINK = "mavlink"  # a detector whose reports come on the vehicle's own MAVLink link
+_SOCKET = TypeAdapter(DetectorSocket)
+
+
+def _detector(value: Any) -> Endpoint | str:
+    """ON_LINK, or a local UDP socket the detector sends its reports to."""
+    if value == ON_LINK:
+        return ON_LINK
+    try:
+        return _SOCKET.validate_python(value)
+    except ValidationError:
+        raise SpecError(
+            f'is neither "{ON_LINK}" nor a local UDP socket (udp:HOST:PORT)',
+            f'write detector = "{ON_LINK}" (reports on the vehicle\'s own link) or detector = "udp:127.0.0.1:14650"',
+            example="udp:127.0.0.1:14650",
+        ) from None
+
+
+Detector = Annotated[Endpoint | str, PlainValidator(_detector), PlainSerializer(str, when_used="json")]
 
 
 def parse_option(kind: Any, text: str, option: str) -> Any:
@@ -143,9 +163,9 @@ def parse_option(kind: Any, text: str, option: str) -> Any:
         raise InputError(f"{option} {text!r}: {cause.rule}; give for example {option} {cause.example}") from None
 
 
-def parse_detector(text: str, option: str = "--detector") -> Endpoint:
-    """A detector socket given on the command line (udp:HOST:PORT)."""
-    return parse_option(DetectorSocket, text, option)
+def parse_detector(text: str, option: str = "--detector") -> Endpoint | str:
+    """A detector given on the command line: ON_LINK or a local socket (udp:HOST:PORT)."""
+    return parse_option(Detector, text, option)
 
 
 # --- the tables ----------------------------------------------------------------------------------------
@@ -300,26 +320,45 @@ class TimingTable(Table):
     """[timing]: the pace of the search and how long each stage may take."""
 
     step_period: float = setting(1.0, "time between decisions, at least", ge=0.0, le=60.0, unit="seconds")
-    step_timeout: float = setting(
-        30.0, "time to reach the next cell before the step is given up", ge=0.1, le=600.0, unit="seconds"
+    step_timeout: float | None = setting(
+        None,
+        "time to reach the next cell before the step is given up",
+        ge=0.1,
+        le=600.0,
+        unit="seconds",
+        example=30.0,
+        default_text=f"{DERIVED}: 2 x the move at its speed parameters + 5 s",
     )
     time_limit: float = setting(900.0, "time for the whole search", ge=1.0, le=86400.0, unit="seconds")
     connect_timeout: float = setting(20.0, "wait for a vehicle's first heartbeat", ge=0.1, le=600.0, unit="seconds")
     ready_timeout: float = setting(
-        60.0,
-        "wait for a vehicle to be ready to arm (position, home, pre-arm checks)",
+        120.0,
+        "wait for a vehicle to be ready to arm in the mode it is flown in (ArduPilot: GUIDED, GPS fix, "
+        "the EKF's position, home, pre-arm checks; ArduCopter SITL takes 42 s)",
         ge=0.1,
         le=3600.0,
         unit="seconds",
     )
-    takeoff_timeout: float = setting(
-        120.0, "wait for a take-off to reach the altitude and the first cell", ge=1.0, le=3600.0, unit="seconds"
+    takeoff_timeout: float | None = setting(
+        None,
+        "wait for a take-off to reach the altitude, and again for the first cell",
+        ge=1.0,
+        le=3600.0,
+        unit="seconds",
+        example=120.0,
+        default_text=f"{DERIVED}: 2 x (spool-up + the climb at its climb rate) + 5 s; the first cell as a step",
     )
     sense_timeout: float = setting(
         5.0, "wait for the detector's report after reaching a cell", ge=0.0, le=60.0, unit="seconds"
     )
-    end_timeout: float = setting(
-        180.0, "wait for the vehicles to land after the end action (0: do not wait)", ge=0.0, le=3600.0, unit="seconds"
+    end_timeout: float | None = setting(
+        None,
+        "wait for the vehicles to land after the end action (0: do not wait)",
+        ge=0.0,
+        le=3600.0,
+        unit="seconds",
+        example=180.0,
+        default_text=f"{DERIVED}: 2 x (its return and landing at its speed parameters) + 5 s",
     )
 
 
@@ -358,10 +397,13 @@ class BatteryTable(Table):
 class KnowledgeTable(Table):
     """[knowledge]: how the agents share what they know (TUNNEL messages)."""
 
-    channel: SendTo = setting(
-        Endpoint("udpout", "127.0.0.1", 14600),
-        "where the agents send their TUNNEL messages (a MAVLink router or radio that forwards them to every agent)",
+    channel: SendTo | None = setting(
+        None,
+        "where agents in separate processes (`swarmctl agent`) send their TUNNEL messages: a MAVLink router or "
+        "telemetry mesh that forwards them to every agent; `swarmctl fly` shares in its own process and needs none",
         span="udpout:HOST:PORT",
+        example="udpout:127.0.0.1:14600",
+        default_text="none (needed by `swarmctl agent`)",
     )
     digest_every: int = setting(5, "steps between digests of what an agent knows", ge=1, le=1000, unit="steps")
     push: bool | None = setting(
@@ -383,19 +425,26 @@ class VehicleSpec(Table):
         span="udpin:HOST:PORT, udpout:HOST:PORT, tcp:HOST:PORT, DEVICE:BAUD",
         example="udpin:0.0.0.0:14551",
     )
-    sysid: int = setting(..., "its MAVLink system id, SYSID_THISMAV; unique in the swarm", ge=1, le=250, example=1)
+    sysid: int = setting(
+        ...,
+        "its MAVLink system id (ArduPilot 4.7: MAV_SYSID, before: SYSID_THISMAV; PX4: MAV_SYS_ID); unique in the swarm",
+        ge=1,
+        le=250,
+        example=1,
+    )
     autopilot: Literal[AUTOPILOT_NAMES] | None = setting(
         None,
         "the firmware it must run; a vehicle whose heartbeat says otherwise is refused",
         example="ardupilot",
         default_text="as its heartbeat says",
     )
-    detector: DetectorSocket | None = setting(
+    detector: Detector | None = setting(
         None,
-        "a local socket its detector reports to",
-        span="udp:HOST:PORT",
-        example="udp:127.0.0.1:14650",
-        default_text="its MAVLink link",
+        'its detector: "mavlink" (reports on its own MAVLink link) or the local socket it reports to; '
+        "the controller waits for a report after each cell reached (sense_timeout)",
+        span='"mavlink", udp:HOST:PORT',
+        example="mavlink",
+        default_text="none: a coverage search (cells explored from its position, nothing to find)",
     )
 
 
@@ -422,7 +471,7 @@ class MissionSpec(Table):
                 if other.sysid == v.sysid:
                     raise SpecError(
                         f"is also the system id of {other.name!r}",
-                        "system ids must be unique in a swarm (SYSID_THISMAV)",
+                        "system ids must be unique in a swarm (ArduPilot's MAV_SYSID, PX4's MAV_SYS_ID)",
                         ("vehicles", i, "sysid"),
                         v.sysid,
                     )

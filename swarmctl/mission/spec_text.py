@@ -154,7 +154,7 @@ def _kind(info: Any) -> str:
     if _choices(info):
         return "choice"
     names = {float: "number", int: "integer", bool: "true/false", str: "string", Path: "file path"}
-    return names.get(t, "connection" if t is Endpoint else "table")
+    return names.get(t, "connection" if t is Endpoint or Endpoint in typing.get_args(t) else "table")
 
 
 def _unit(info: Any) -> str:

@@ -16,21 +16,23 @@ trained it). Version 1 files (no hash, no variant) still load as the paper's var
 from __future__ import annotations
 
 import hashlib
-import math
 import pickle
 import zipfile
+from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from swarmctl.errors import InputError
-from swarmctl.policy.qnet import ARCHITECTURE, QNetwork
+from swarmctl.bounds import CHECKPOINT_MAX_BYTES, size_text
+from swarmctl.errors import InputError, ScenarioError
+from swarmctl.policy.qnet import NETWORKS
 from swarmctl.world.beliefs import PAPER_VARIANT
+from swarmctl.world.config import WorldConfig
 
 FORMAT = "swarmctl-ddql"
 VERSION = 2
-VARIANTS = (PAPER_VARIANT,)
+VARIANTS = tuple(cls.variant for cls in NETWORKS.values())
 
 
 def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
@@ -44,7 +46,7 @@ def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
 
 
 def save_checkpoint(
-    path: str | Path, net: QNetwork, world: dict, train: dict, metadata: dict, resume: dict | None = None
+    path: str | Path, net: torch.nn.Module, world: dict, train: dict, metadata: dict, resume: dict | None = None
 ) -> str:
     """Write the network and everything needed to reproduce and judge it; returns its weights hash."""
     path = Path(path)
@@ -54,8 +56,8 @@ def save_checkpoint(
     payload = {
         "format": FORMAT,
         "version": VERSION,
-        "architecture": ARCHITECTURE,
-        "variant": PAPER_VARIANT,
+        "architecture": net.architecture,
+        "variant": net.variant,
         "window": net.window,
         "n_actions": 5,
         "state_dict": state,
@@ -76,16 +78,22 @@ def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
     return {"file": Path(path).name, "weights_sha256": info["weights_sha256"]}
 
 
-def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwork, dict]:
+def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.nn.Module, dict]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
-    Raises InputError naming the file when it is missing, not a checkpoint, from another architecture,
-    variant or version, damaged (weights not matching their hash, NaN or infinite weights), or made
-    for another observation size than `window`.
+    Raises InputError naming the file when it is missing, over CHECKPOINT_MAX_BYTES, not a checkpoint,
+    from another architecture, variant or version, damaged (weights not matching their hash, NaN or
+    infinite weights, a stored world config WorldConfig refuses), or made for another observation size
+    than `window`.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such checkpoint file; train one with `swarmctl train ... --out {path}`")
+    if path.stat().st_size > CHECKPOINT_MAX_BYTES:
+        raise InputError(
+            f"{path}: {size_text(path.stat().st_size)}, over the {size_text(CHECKPOINT_MAX_BYTES)} a checkpoint "
+            "may have; give a .pt file written by `swarmctl train`"
+        )
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except (
@@ -108,16 +116,17 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
     version = payload.get("version")
     if version not in (1, VERSION):
         raise InputError(f"{path}: checkpoint version {version!r} is not supported (expected 1 or {VERSION})")
-    if payload.get("architecture") != ARCHITECTURE:
+    network = NETWORKS.get(payload.get("architecture"))
+    if network is None:
         raise InputError(
-            f"{path}: architecture {payload.get('architecture')!r} is not {ARCHITECTURE!r}; "
+            f"{path}: architecture {payload.get('architecture')!r} is not one of {', '.join(NETWORKS)}; "
             "retrain with this version of swarmctl"
         )
     payload.setdefault("variant", PAPER_VARIANT)
-    if payload["variant"] not in VARIANTS:
+    if payload["variant"] != network.variant:
         raise InputError(
-            f"{path}: observation variant {payload['variant']!r} is unknown to this version of "
-            f"swarmctl (known: {', '.join(VARIANTS)})"
+            f"{path}: observation variant {payload['variant']!r} does not go with the {network.architecture} "
+            f"network (it takes {network.variant!r}); the file was altered or mislabelled"
         )
     f = payload.get("window")
     if not isinstance(f, int) or isinstance(f, bool) or not 8 <= f <= 256:
@@ -142,18 +151,34 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNetwo
         if t.is_floating_point() and not bool(torch.isfinite(t).all()):
             raise InputError(f"{path}: weight {key} holds NaN or infinite values; this model cannot fly")
     try:
-        net = QNetwork(window=f)
+        net = network(window=f)
         net.load_state_dict(state)
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
         raise InputError(
-            f"{path}: weights do not fit the {ARCHITECTURE} network ({str(exc).splitlines()[0]})"
+            f"{path}: weights do not fit the {network.architecture} network ({str(exc).splitlines()[0]})"
         ) from None
     net.eval()
     info = {k: v for k, v in payload.items() if k != "state_dict"}
-    for key in ("fov", "rho", "sigma2", "phi_cutoff"):
-        value = info["world"].get(key)
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)
-        ):
-            raise InputError(f"{path}: world.{key} = {value!r} is not a finite number")
+    _check_world(info["world"], f, path)
     return net, info
+
+
+def _check_world(world: dict, window: int, path: Path) -> None:
+    """The stored world config, as WorldConfig validates one (finite numbers, ranges), with the network's window."""
+    known = {f.name: f.type for f in fields(WorldConfig)}
+    for key, value in world.items():
+        kind = known.get(key)
+        if kind is None:
+            continue  # a field of a newer or older swarmctl, never read
+        types = {"int": int, "float": (int, float), "str": str, "bool": bool}.get(kind, object)
+        if not isinstance(value, types) or (kind != "bool" and isinstance(value, bool)):
+            raise InputError(f"{path}: world.{key} = {value!r} is not a {kind}; use an intact checkpoint")
+    try:
+        WorldConfig(**{k: v for k, v in world.items() if k in known})
+    except ScenarioError as exc:
+        raise InputError(f"{path}: the stored world config is not valid ({exc}); use an intact checkpoint") from None
+    if world.get("window", window) != window:
+        raise InputError(
+            f"{path}: world.window = {world.get('window')!r} differs from the network's {window}; "
+            "use an intact checkpoint"
+        )

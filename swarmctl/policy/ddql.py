@@ -3,7 +3,7 @@
 `ddql:PATH` samples from softmax(Q / tau) with tau = 0.1 (the paper's "DDQL Soft"; it keeps stuck
 vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as `:key=value`:
 
-- `tau=T`: the softmax temperature (default 0.1);
+- `tau=T`: the softmax temperature (default 0.1; 0 < T <= 100);
 - `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
   LA(n) removes them from its value map (default remove; keep is the paper's observation);
 - `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there and every
@@ -73,7 +73,8 @@ class DDQLPolicy:
         self.net, self.info = load_checkpoint(path)
         self.forward = make_forward(self.net, forward, key=self.info.get("weights_sha256"))
         # as it was trained (the window of the network itself)
-        self.settings = replace(ObservationSettings.from_world(self.info["world"]), window=self.net.window)
+        world = ObservationSettings.from_world(self.info["world"])
+        self.settings = replace(world, window=self.net.window, variant=self.net.variant)
         self.seed = 0
         self.frontier = FrontierPolicy()
 
@@ -97,7 +98,10 @@ class DDQLPolicy:
         return self.forward(obs.reshape(b * u, *obs.shape[2:])).reshape(b, u, -1)
 
     def decide(self, beliefs: Beliefs) -> Decision:
-        obs = observe(beliefs, self.remove_taken)
+        seen = beliefs  # observed in the network's own variant, whatever the world trains others on
+        if beliefs.settings.variant != self.net.variant:
+            seen = beliefs.with_settings(variant=self.net.variant)
+        obs = observe(seen, self.remove_taken)
         q = self.q_values(obs)
         u = Draws(self.seed, beliefs).deciders(SOFTMAX)
         moves = choose(q, allowed_moves(beliefs, self.hover, self.mask), self.tau, u)
@@ -117,6 +121,9 @@ class DDQLPolicy:
     def field_settings(self, phi_tolerance: float) -> ObservationSettings:
         """The observation settings the field builds beliefs with: the model's own."""
         return replace(self.settings, phi_tolerance=phi_tolerance)
+
+
+MAX_TAU = 100.0  # a softmax temperature beyond this is a uniform draw, and inf or NaN are no number
 
 
 def split_options(rest: str) -> tuple[str, str]:
@@ -150,8 +157,8 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
             tau = float(options["tau"])
         except ValueError:
             tau = -1.0
-        if not tau > 0:
-            raise InputError(f"--policy {spec!r}: tau must be a number > 0, as in ddql:PATH:tau=0.1")
+        if not 0 < tau <= MAX_TAU:
+            raise InputError(f"--policy {spec!r}: tau must be a number > 0 and <= {MAX_TAU:g}, as in ddql:PATH:tau=0.1")
     for key, allowed in _CHOICES.items():
         if options.get(key, allowed[0]) not in allowed:
             raise InputError(

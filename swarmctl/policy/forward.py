@@ -61,7 +61,7 @@ def export_onnx(net: QNetwork, key: str | None = None) -> bytes:
     if key is not None and key in _EXPORTED:
         return _EXPORTED[key]
     buffer = io.BytesIO()
-    example = torch.zeros(1, 3, net.window, net.window)
+    example = torch.zeros(1, net.in_channels, net.window, net.window)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the TorchScript exporter's deprecation notice
         torch.onnx.export(

@@ -7,6 +7,11 @@
     Linear(64 -> 5)                -> Q-values for stay, N, E, S, W
 
 76,509 parameters for F = 20. Other window sizes change only the first linear layer's input.
+
+`GlobalLocalQNetwork` is the network of the global-local observation variant
+(swarmctl.world.observe_global): the paper's convolutions on the local channels 0-2, a second
+convolutional branch on the four pooled whole-map channels 3-6, their features joined before the
+head. `make_network(variant, window)` builds the network a variant needs.
 """
 
 from __future__ import annotations
@@ -14,7 +19,10 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from swarmctl.world.beliefs import GLOBAL_LOCAL_VARIANT, PAPER_VARIANT
+
 ARCHITECTURE = "venturini2021-cnn"
+GLOBAL_LOCAL_ARCHITECTURE = "global-local-cnn-v1"
 
 
 def conv_output_side(window: int) -> int:
@@ -25,6 +33,12 @@ def conv_output_side(window: int) -> int:
 
 
 class QNetwork(nn.Module):
+    """The paper's network on its (3, F, F) observation."""
+
+    architecture = ARCHITECTURE
+    variant = PAPER_VARIANT
+    in_channels = 3
+
     def __init__(self, window: int = 20, n_actions: int = 5, channels: int = 20, hidden: int = 64):
         super().__init__()
         if conv_output_side(window) < 1:
@@ -45,6 +59,60 @@ class QNetwork(nn.Module):
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (N, 3, F, F) -> Q-values (N, 5)."""
         return self.head(self.features(obs))
+
+
+class GlobalLocalQNetwork(nn.Module):
+    """The global-local variant on its (7, F, F) observation: the paper's convolutions on channels 0-2
+    (the local window), two strided convolutions on channels 3-6 (the whole map pooled to F x F around
+    the vehicle), both flattened and joined, then Linear(hidden) and Linear(5). 196,045 parameters
+    for F = 20."""
+
+    architecture = GLOBAL_LOCAL_ARCHITECTURE
+    variant = GLOBAL_LOCAL_VARIANT
+    in_channels = 7
+
+    def __init__(
+        self, window: int = 20, n_actions: int = 5, channels: int = 20, global_channels: int = 16, hidden: int = 128
+    ):
+        super().__init__()
+        if conv_output_side(window) < 1:
+            raise ValueError(f"window {window} is too small for the network: F must be >= 8")
+        self.window = window
+        side = conv_output_side(window)
+        self.local = nn.Sequential(
+            nn.Conv2d(3, channels, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, 4, stride=1),
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, 4, stride=2),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        g = ((window + 1) // 2 + 1) // 2  # two 3x3 stride-2 convolutions with padding 1 halve it, rounding up
+        self.whole = nn.Sequential(
+            nn.Conv2d(4, global_channels, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(global_channels, global_channels, 3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(global_channels, global_channels, 3, stride=2, padding=1),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        features = channels * side * side + global_channels * g * g
+        self.head = nn.Sequential(nn.Linear(features, hidden), nn.ReLU(), nn.Linear(hidden, n_actions))
+
+    def forward(self, obs: torch.Tensor) -> torch.Tensor:
+        """obs (N, 7, F, F) -> Q-values (N, 5)."""
+        return self.head(torch.cat([self.local(obs[:, :3]), self.whole(obs[:, 3:])], dim=1))
+
+
+NETWORKS = {QNetwork.architecture: QNetwork, GlobalLocalQNetwork.architecture: GlobalLocalQNetwork}
+_BY_VARIANT = {cls.variant: cls for cls in NETWORKS.values()}
+
+
+def make_network(variant: str = PAPER_VARIANT, window: int = 20) -> nn.Module:
+    """The network an observation variant needs, freshly initialised."""
+    return _BY_VARIANT[variant](window)
 
 
 def parameter_count(net: nn.Module) -> int:

@@ -3,12 +3,14 @@ tracks, plots and a summary."""
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
 
+from swarmctl.bounds import real, whole, writable_folder
 from swarmctl.errors import InputError
+
+MAX_PANELS = 100  # pictures one --steps may ask for
 
 
 def _steps(value: str | None) -> list[int] | None:
@@ -22,20 +24,15 @@ def _steps(value: str | None) -> list[int] | None:
         ) from None
     if not steps or min(steps) < 0:
         raise InputError(f"--steps {value!r}: give step numbers >= 0 separated by commas, e.g. --steps 0,50,100")
+    if len(steps) > MAX_PANELS:
+        raise InputError(f"--steps: {len(steps)} pictures asked for, over {MAX_PANELS}; give fewer steps")
     return steps
 
 
 def _out_dir(path: Path, out: Path | None) -> Path:
+    """The output folder (--out, or beside the recording), checked to be writable before the replay is read."""
     folder = out if out is not None else (path / "replay" if path.is_dir() else path.with_name(f"{path.stem}-replay"))
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(
-            f"--out {folder}: cannot create it ({exc.strerror}); give --out DIR somewhere writable"
-        ) from None
-    if not os.access(folder, os.W_OK):
-        raise InputError(f"--out {folder}: not writable; give --out DIR somewhere writable")
-    return folder
+    return writable_folder(folder, "--out")
 
 
 def _check_step(replay, name: str, value: int | None) -> None:
@@ -73,8 +70,8 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     help="Steps of the three-panel pictures, e.g. 0,50,100 (default: --from-step and --to-step: the first and "
     "the last step). A log without decision steps counts seconds from its start.",
 )
-@click.option("--from-step", type=int, default=None, help="First step of the animation (default: the first).")
-@click.option("--to-step", type=int, default=None, help="Last step of the animation (default: the last).")
+@click.option("--from-step", type=whole(0), default=None, help="First step of the animation (default: the first).")
+@click.option("--to-step", type=whole(0), default=None, help="Last step of the animation (default: the last).")
 @click.option(
     "--vehicle",
     "--vehicles",
@@ -83,7 +80,9 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     help="Replay only this vehicle (its name, or a system id for a bare .tlog); repeatable. The known map "
     "shows what the chosen vehicles knew together.",
 )
-@click.option("--fps", type=float, default=10.0, show_default=True, help="Frames per second of the animation.")
+@click.option(
+    "--fps", type=real(0, 60, above=True), default=10.0, show_default=True, help="Frames per second of the animation."
+)
 @click.option("--grid", "grid_file", type=click.Path(path_type=Path), default=None, help="grid.npz for a bare .tlog.")
 @click.option(
     "--buildings",
@@ -131,13 +130,12 @@ def replay_command(
     from swarmctl.replay.summary import summary_lines
     from swarmctl.replay.tracks import write_tracks
 
-    if not 0 < fps <= 60:
-        raise InputError(f"--fps {fps}: give a number of frames per second above 0 and at most 60")
     if basemap is not None and not all(k in basemap for k in ("{z}", "{x}", "{y}")):
         raise InputError(f"--basemap {basemap!r}: the tile URL needs {{z}}, {{x}} and {{y}}")
     wanted = _steps(steps)
     if not recording.exists():
         raise InputError(f"{recording}: not found; give a recording folder (fly, agent, demo) or a .tlog file")
+    folder = _out_dir(recording, out)
     source = recording / "mission.tlog" if recording.is_dir() else recording
     size = source.stat().st_size if source.is_file() else 0
     with tqdm(
@@ -145,7 +143,7 @@ def replay_command(
     ) as bar:
         replay = rmod.load(recording, list(vehicles) or None, grid_file, buildings, progress=bar.update)
     first, last = _frame_range(replay, from_step, to_step)
-    folder = _out_dir(recording, out)
+    folder.mkdir(parents=True, exist_ok=True)
     for s in wanted or []:
         _check_step(replay, "--steps", s)
     panel_frames = [replay.frame_of_step(s) for s in wanted] if wanted is not None else sorted({first, last})

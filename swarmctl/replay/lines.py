@@ -13,9 +13,11 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from swarmctl.errors import InputError
+from swarmctl.bounds import GIB, read_limited
 from swarmctl.mission.events import EventError, check_event
 from swarmctl.replay.tlog import Damage
+
+LINES_MAX_BYTES = GIB  # a 50-vehicle, 200-step demo writes about 30 MB of events
 
 
 @dataclass
@@ -35,10 +37,7 @@ class Lines:
 def read_lines(path: str | Path) -> Lines:
     """Read and check every line; InputError only when the file cannot be read at all."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror})") from None
+    raw = read_limited(path, "recording's JSON-lines file", LINES_MAX_BYTES)
     out = Lines(path)
     offset = 0
     for number, line in enumerate(raw.split(b"\n"), start=1):
@@ -51,6 +50,9 @@ def read_lines(path: str | Path) -> Lines:
             last = offset >= len(raw)
             why = f"line {number} is not JSON" + (" (cut short at the end of the file)" if last else "")
             out.damage.append(Damage(at, len(line), why))
+            continue
+        except RecursionError:  # the parser's own depth guard: no line the recorder writes nests so deep
+            out.damage.append(Damage(at, len(line), f"line {number} is JSON nested too deeply"))
             continue
         try:
             kind = check_event(obj)

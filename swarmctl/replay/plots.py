@@ -60,11 +60,12 @@ def write_plots(replay: Replay, out: Path) -> list[Path]:
     flown = [v.distance_m for v in replay.vehicles]
     pos = np.arange(len(names))
     ax.bar(pos - 0.2, flown, 0.4, color=[v.colour for v in replay.vehicles], label="whole flight (telemetry)")
-    searched = [(v.summary or {}).get("distance_m") for v in replay.vehicles]
-    if any(s is not None for s in searched):
-        ax.bar(
-            pos + 0.2, [s or 0 for s in searched], 0.4, color="lightgrey", edgecolor="black", label="search (summary)"
-        )
+    # the summary's count: 3-D over the whole flight (distance_3d_m); older recordings: the search, horizontal
+    summaries = [v.summary or {} for v in replay.vehicles]
+    counted = [s.get("distance_3d_m", s.get("distance_m")) for s in summaries]
+    if any(c is not None for c in counted):
+        label = "whole flight, 3-D (summary)" if any("distance_3d_m" in s for s in summaries) else "search (summary)"
+        ax.bar(pos + 0.2, [c or 0 for c in counted], 0.4, color="lightgrey", edgecolor="black", label=label)
         ax.legend(fontsize=7)
     ax.set_xticks(pos, names, rotation=90 if len(names) > 8 else 0, fontsize=7)
     ax.set(ylabel="distance flown (m)", title=f"{replay.name}: distance flown")

@@ -13,7 +13,6 @@ by the guarded move (the step line records where each vehicle was when the round
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 import shapely
 
+from swarmctl.bounds import INPUT_MAX_BYTES, load_json
 from swarmctl.errors import InputError
 from swarmctl.geo.buildings import load_buildings
 from swarmctl.geo.grid import GeoGrid
@@ -483,9 +483,9 @@ def _read_json(path: Path, loader: _Loader) -> dict | None:
     if not path.is_file():
         return None
     try:
-        body = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        loader.notes.append(f"{path.name}: not readable ({type(exc).__name__}); replayed without it")
+        body = load_json(path, "summary", INPUT_MAX_BYTES)
+    except InputError as exc:
+        loader.notes.append(f"{path.name}: not readable ({str(exc).removeprefix(f'{path}: ')}); replayed without it")
         return None
     return body if isinstance(body, dict) else None
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmctl.bounds import INPUT_MAX_BYTES, load_json
 from swarmctl.errors import InputError
 
 TRUTH_FILE = "truth.json"
@@ -71,10 +72,7 @@ def load_truth(path: str | Path, width: int, height: int) -> Truth:
     """Read truth.json for a width x height grid; InputError naming the file and field when it is bad."""
     path = Path(path)
     fix = "delete it to replay without the true map"
-    try:
-        body = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{path}: not a readable truth file ({type(exc).__name__}); {fix}") from None
+    body = load_json(path, "truth", INPUT_MAX_BYTES, fix)
     if not isinstance(body, dict) or body.get("format") != TRUTH_FORMAT or body.get("version") != TRUTH_VERSION:
         raise InputError(f"{path}: not a {TRUTH_FORMAT} version {TRUTH_VERSION} file; {fix}")
     if body.get("grid") != [width, height]:

@@ -3,17 +3,22 @@
 What differs between the two firmwares comes from the mock's personality (personality.py), built on
 the same autopilot descriptions the controller flies by; this module holds what they share.
 
-It behaves like the real autopilot as far as a controller can see (checked against a real ArduCopter
-SITL log): HEARTBEAT type/autopilot/base_mode/custom_mode, pre-arm checks that fail for the first
-seconds (FAILED + a "PreArm:" STATUSTEXT), takeoff only when armed in GUIDED, COMMAND_ACK results,
-SET_MESSAGE_INTERVAL (a fresh ArduPilot sends only heartbeats), simple kinematics, a draining battery,
-a GCS failsafe, signing, faults injected from tests, and a geofence (uploaded with the mission
-protocol, see fence.py) that it enforces: a position target outside it is refused, as ArduCopter's
-GUIDED mode and PX4's reposition refuse one.
+It behaves like the real autopilot as far as a controller can see (checked against ArduCopter 4.7
+SITL, docs/mavlink.md): HEARTBEAT type/autopilot/base_mode/custom_mode/system_status, a boot through
+the stages a real one passes (boot.py: streams from "ArduPilot Ready", positions 0, 0 until the GPS
+fix, home with the EKF origin, the EKF's absolute position last), pre-arm checks judged in the current
+mode (healthy in STABILIZE before GUIDED can arm; "PreArm:" texts; an arm refused with FAILED + "Arm:
+Need Position Estimate"), any mode taken while disarmed, takeoff only when armed in GUIDED,
+COMMAND_ACK results, SET_MESSAGE_INTERVAL (a fresh ArduPilot sends only heartbeats), parameters (its
+speeds among them), simple kinematics, a draining battery, a GCS failsafe, signing, faults injected
+from tests (the slow EKF among them), a TCP port served as SITL serves SERIAL0 (serial0.py: boot on the
+first client, console text before MAVLink), and a geofence (uploaded with the mission protocol, see
+fence.py) that it enforces: a position target outside it is refused, as ArduCopter's GUIDED mode and
+PX4's reposition refuse one.
 
-Time: physics (speeds, climb, battery, the "not ready" period) runs `speedup` times faster than the
-wall clock; link timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations)
-stays in wall-clock seconds, because the controller on the other side runs in real time.
+Time: physics (speeds, climb, battery, the boot) runs `speedup` times faster than the wall clock; link
+timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations) stays in
+wall-clock seconds, because the controller on the other side runs in real time.
 
 It runs in its own thread: ``with MockAutopilot(sysid=1, connect="udpout:127.0.0.1:14550") as v: ...``.
 Hooks for later simulation layers: `tunnel_handler(mock, msg)` sees every TUNNEL message addressed to
@@ -39,8 +44,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import distance_m, from_deg_e7, ne_m, offset_m, to_deg_e7
 from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+from swarmctl.sim.boot import Boot
 from swarmctl.sim.fence import FENCE, MockFence
 from swarmctl.sim.personality import Personality, personality_named
+from swarmctl.sim.serial0 import SCHEME as TCPIN
+from swarmctl.sim.serial0 import Serial0Server, parse_tcpin
 
 MAV = mavlink2
 log = logging.getLogger(__name__)
@@ -65,7 +73,11 @@ _STREAMABLE = {
     MAV.MAVLINK_MSG_ID_BATTERY_STATUS,
     MAV.MAVLINK_MSG_ID_HEARTBEAT,
     MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+    MAV.MAVLINK_MSG_ID_GPS_RAW_INT,
+    MAV.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
+    MAV.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN,
 }
+PREARM_DISPLAY_S = 30.0  # simulated seconds between two "PreArm: ..." texts with the same reason
 
 
 class _Outbox:
@@ -88,7 +100,7 @@ class MockState:
     armed: bool
     mode: str
     battery: float
-    ready: bool
+    ready: bool  # can arm in the mode swarmctl flies it in (ArduPilot: the EKF uses the GPS)
     gcs_failsafe: bool
     fence: tuple[tuple[tuple[float, float], ...], ...] = ()  # stored inclusion polygons, (lat, lon)
     fence_enabled: bool = False  # the fence is enforced
@@ -124,7 +136,8 @@ class MockAutopilot:
         self.speed, self.climb_rate, self.descent_rate = speed, climb_rate, descent_rate
         self.speedup = speedup
         self.signing_key = signing_key
-        self.ready_after = ready_after  # simulated seconds after boot before pre-arm checks pass
+        self.ready_after = ready_after  # simulated seconds after boot before it can arm (boot.py)
+        self.ekf_after: float | None = None  # the slow-EKF fault (slow_ekf); None: ready_after
         self.gcs_failsafe_timeout = gcs_failsafe_timeout  # wall seconds; None disables the failsafe
         self.rtl_alt = rtl_alt
         self.battery_drain = battery_drain  # % per simulated second while flying
@@ -144,14 +157,20 @@ class MockAutopilot:
         self.forced_results: dict[int, int] = {}  # command -> MAV_RESULT to answer with
         self._drop_commands: dict[int, int | None] = {}  # command -> how many to ignore (None: all)
         self._drop_sent: dict[str, int | None] = {}  # message type -> how many not to send (None: all)
+        self._forget: dict[int, int] = {}  # message id -> SET_MESSAGE_INTERVAL requests to acknowledge and forget
         # observation for tests
         # the latest messages addressed to us, (type, src sysid, command or 0), and the answers given
         self.received: deque[tuple[str, int, int]] = deque(maxlen=10_000)
         self.commands: deque[tuple[int, int]] = deque(maxlen=10_000)  # (command, MAV_RESULT)
         self.ignored = 0  # messages seen that were addressed to another system
         self.fence = MockFence(self)  # made here, not at boot: the stored fence survives reboots
-        # parameters are stored too (the fence polygon is enforced; the circle and altitude are not)
+        # parameters are stored too (the fence polygon is enforced; the circle and altitude are not);
+        # the ones that are its speeds say what the mock flies at
         self.params = dict(self.personality.params)
+        for name, (attribute, scale) in self.personality.physics_params.items():
+            self.params[name] = getattr(self, attribute) / scale
+        if "MAV_SYSID" in self.params:
+            self.params["MAV_SYSID"] = float(sysid)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -160,6 +179,7 @@ class MockAutopilot:
         self.mav: Any = None
         self._delayed: list[tuple[float, int, str, Any]] = []
         self._seq = itertools.count()
+        self._console_after_heartbeat = b""
         self._boot()
 
     # --- life cycle ------------------------------------------------------------------------------------
@@ -175,8 +195,8 @@ class MockAutopilot:
         self.custom_mode = self.personality.custom_mode(self.personality.boot_mode)
         self.target: tuple[float, float, float] | None = None  # lat, lon, rel_alt
         self.battery = getattr(self, "battery", 100.0)
-        self.ready = False
-        self.home_set = False
+        self.boot = Boot(self.personality.stages, self.ready_after, self.ekf_after)
+        self._prearm_shown: tuple[str | None, float] = (None, -math.inf)  # reason, sim time
         self.last_gcs_heartbeat: float | None = None
         self.gcs_failsafe = False
         self.last_setpoint = -1e9
@@ -188,7 +208,12 @@ class MockAutopilot:
         self.next_heartbeat = now
 
     def start(self) -> MockAutopilot:
-        self._transport = open_transport(self.connect)
+        if self.connect.startswith(TCPIN):
+            server = Serial0Server(*parse_tcpin(self.connect))
+            server.on_connect = self._client_connected
+            self._transport = server
+        else:
+            self._transport = open_transport(self.connect)
         self.mav = MAV.MAVLink(self._outbox, srcSystem=self.sysid, srcComponent=self.compid)
         self.mav.robust_parsing = True
         if self.signing_key is not None:
@@ -220,6 +245,26 @@ class MockAutopilot:
     def local_port(self) -> int | None:
         return getattr(self._transport, "local_port", None)
 
+    def _client_connected(self) -> None:
+        """A client on the TCP port (serial0.py): the first one boots the vehicle, as SITL boots when
+        its SERIAL0 gets one; each gets the console text before MAVLink."""
+        transport = self._transport
+        assert isinstance(transport, Serial0Server)
+        if transport.clients == 1:
+            with self._lock:
+                self._boot()
+            self._console_after_heartbeat = self.personality.console[1]
+        transport.write(self.personality.console[0])
+
+    @property
+    def ready(self) -> bool:
+        """It can arm in the mode swarmctl flies it in (ArduPilot: GUIDED, once the EKF uses the GPS)."""
+        return self.boot.has("ready")
+
+    @property
+    def home_set(self) -> bool:
+        return self.boot.has("origin")
+
     @property
     def rejected_unsigned(self) -> int:
         """Messages dropped because they were unsigned or wrongly signed."""
@@ -241,8 +286,18 @@ class MockAutopilot:
         self._reboot_pending = True
 
     def refuse_arming(self, reason: str | None = "Hardware safety switch") -> None:
-        """Fail every arm command with a "PreArm: <reason>" STATUSTEXT (None: arm normally again)."""
+        """Fail every arm command with an "<arm prefix>: <reason>" STATUSTEXT (ArduPilot "Arm:", PX4
+        "Arming denied:"; None: arm normally again)."""
         self.arming_refusal = reason
+
+    def slow_ekf(self, seconds: float) -> None:
+        """The EKF uses the GPS only `seconds` simulated seconds after boot (scaled by speedup like the
+        rest of the physics): until then GUIDED cannot arm ("PreArm: Need Position Estimate", the
+        pre-arm bit unhealthy in GUIDED); the GPS fix and home come as usual. Set before it is ready
+        (it also holds through a reboot)."""
+        with self._lock:
+            self.ekf_after = float(seconds)
+            self.boot.slow_ekf(seconds)
 
     def gps_glitch(self, north_m: float, east_m: float, seconds: float = 2.0) -> None:
         """Report a position jumped by north/east metres for `seconds` (wall clock)."""
@@ -259,6 +314,11 @@ class MockAutopilot:
             self._drop_sent.pop(mtype, None)
         else:
             self._drop_sent[mtype] = count
+
+    def forget_intervals(self, mtype: str, count: int = 1) -> None:
+        """Acknowledge the next `count` SET_MESSAGE_INTERVAL for this message type ACCEPTED and then not
+        stream it, as ArduCopter SITL does with a request sent before its first heartbeat."""
+        self._forget[getattr(MAV, f"MAVLINK_MSG_ID_{mtype}")] = count
 
     def force_result(self, command: int, result: int | None) -> None:
         """Answer this command with the given MAV_RESULT without acting on it (None: normal)."""
@@ -399,6 +459,11 @@ class MockAutopilot:
             self.next_heartbeat = now + 1.0
             if now >= self._no_heartbeat_until:
                 self.send_message(self._heartbeat())
+                if self._console_after_heartbeat:  # SITL's "Init Gyro**" between its first heartbeats
+                    self._write(self._console_after_heartbeat)
+                    self._console_after_heartbeat = b""
+        if not self.boot.has("streams"):
+            return  # requests are kept; the streams start at "ArduPilot Ready"
         for msg_id, interval in list(self.intervals.items()):
             due = self.next_due.get(msg_id, 0.0)
             if now >= due:
@@ -411,7 +476,13 @@ class MockAutopilot:
         base = self.personality.base_mode(self.custom_mode)
         if self.armed:
             base |= MAV.MAV_MODE_FLAG_SAFETY_ARMED
-        status = MAV.MAV_STATE_ACTIVE if self.armed else MAV.MAV_STATE_STANDBY if self.ready else MAV.MAV_STATE_BOOT
+        status = (
+            MAV.MAV_STATE_ACTIVE
+            if self.armed
+            else MAV.MAV_STATE_STANDBY
+            if self.boot.has("standby")
+            else MAV.MAV_STATE_BOOT
+        )
         autopilot = self.personality.autopilot.mav_autopilot
         return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode, status)
 
@@ -428,14 +499,15 @@ class MockAutopilot:
 
     def _build(self, msg_id: int) -> Any:
         home_lat, home_lon, home_alt = self.home
+        gps = self.boot.has("gps")
         if msg_id == MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            if not self.ready and not self.personality.position_before_ready:
+            if not gps and not self.personality.position_before_ready:
                 return None
-            if self.ready:
+            if gps:
                 lat, lon = self._reported_latlon()
                 lat_i, lon_i = to_deg_e7(lat), to_deg_e7(lon)
             else:
-                lat_i = lon_i = 0  # no EKF origin yet: ArduPilot reports zeros
+                lat_i = lon_i = 0  # no GPS fix yet: ArduPilot reports zeros
             vn, ve, vd = self.vel
             hdg = int(math.degrees(math.atan2(ve, vn)) % 360 * 100) if (vn or ve) else 65535
             return self.mav.global_position_int_encode(
@@ -465,12 +537,36 @@ class MockAutopilot:
                 0,
                 int((time.monotonic() - self.boot_wall) * 1e6),
             )
-        if msg_id == MAV.MAVLINK_MSG_ID_SYS_STATUS:
-            health = (
-                _SENSORS
-                if self.ready
-                else _SENSORS & ~(MAV.MAV_SYS_STATUS_PREARM_CHECK | MAV.MAV_SYS_STATUS_SENSOR_GPS)
+        if msg_id == MAV.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
+            if not self.home_set:
+                return None
+            t_us = int((time.monotonic() - self.boot_wall) * 1e6)
+            return self.mav.gps_global_origin_encode(
+                to_deg_e7(home_lat), to_deg_e7(home_lon), int(round(home_alt * 1000)), t_us
             )
+        if msg_id == MAV.MAVLINK_MSG_ID_GPS_RAW_INT:
+            lat, lon = self._reported_latlon() if gps else (0.0, 0.0)
+            vn, ve, _vd = self.vel
+            return self.mav.gps_raw_int_encode(
+                int((time.monotonic() - self.boot_wall) * 1e6),
+                MAV.GPS_FIX_TYPE_RTK_FIXED if gps else MAV.GPS_FIX_TYPE_NO_FIX,  # what SITL reports: 6
+                to_deg_e7(lat),
+                to_deg_e7(lon),
+                int(round((home_alt + self.rel_alt) * 1000)) if gps else 0,
+                121 if gps else 65535,
+                200 if gps else 65535,
+                int(math.hypot(vn, ve) * 100),
+                int(math.degrees(math.atan2(ve, vn)) % 360 * 100) if (vn or ve) else 65535,
+                10 if gps else 0,
+            )
+        if msg_id == MAV.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
+            return self.mav.ekf_status_report_encode(self.boot.ekf_flags(), 0.02, 0.03, 0.02, 0.01, 0.0)
+        if msg_id == MAV.MAVLINK_MSG_ID_SYS_STATUS:
+            health = _SENSORS
+            if not self.armed and self._not_armable() is not None:  # always healthy when armed
+                health &= ~MAV.MAV_SYS_STATUS_PREARM_CHECK
+            if not gps:
+                health &= ~MAV.MAV_SYS_STATUS_SENSOR_GPS
             volts = 4 * (3.5 + 0.7 * self.battery / 100.0)
             current = 1500 if self.rel_alt > 0.1 else (100 if self.armed else 50)
             return self.mav.sys_status_encode(
@@ -514,10 +610,10 @@ class MockAutopilot:
     def _step(self, dt: float, now: float) -> None:
         self.sim_time += dt
         self.fence.tick(now)
-        if not self.ready and self.sim_time >= self.ready_after:
-            self.ready = self.home_set = True
-            for text in self.personality.ready_texts:
-                self.statustext(text)
+        for stage in self.boot.advance(self.sim_time):
+            for text in self.personality.stage_texts.get(stage, ()):
+                self.statustext(text.format(alt=self.home[2]))
+        self._prearm_texts()
         self._failsafe(now)
         if self.armed:
             self.battery = max(
@@ -550,6 +646,28 @@ class MockAutopilot:
             self.target = None
             self.vel = (0.0, 0.0, 0.0)
             self.statustext(self.personality.landed_text)
+
+    def _not_armable(self) -> str | None:
+        """Why the vehicle could not arm now in its current mode (None: it could), as its pre-arm
+        checks see it: a mode that needs a position needs "ready", another one the "manual" stage."""
+        p = self.personality
+        if not p.position_modes or self.mode_name in p.position_modes:
+            return None if self.ready else p.not_ready_reason
+        return None if self.boot.has("manual") else p.boot_reason
+
+    def _prearm_texts(self) -> None:
+        """The periodic pre-arm failure text ("PreArm: Need Position Estimate"), when the reason
+        changes and again every PREARM_DISPLAY_S while it lasts, disarmed, once booted."""
+        prefix = self.personality.prearm_prefix
+        if prefix is None or self.armed or not self.boot.has("streams"):
+            return
+        reason = self._not_armable()
+        shown, at = self._prearm_shown
+        if reason is not None and (reason != shown or self.sim_time - at >= PREARM_DISPLAY_S):
+            self.statustext(f"{prefix}: {reason}", MAV.MAV_SEVERITY_CRITICAL)
+            self._prearm_shown = (reason, self.sim_time)
+        elif reason is None:
+            self._prearm_shown = (None, -math.inf)
 
     def _fence_breach(self) -> None:
         """Outside an enforced fence in flight: the breach action, once per breach: the personality's
@@ -699,6 +817,9 @@ class MockAutopilot:
             msg_id, interval_us = int(p[0]), p[1]
             if msg_id not in _STREAMABLE:
                 return R.MAV_RESULT_FAILED
+            if self._forget.get(msg_id, 0) > 0:
+                self._forget[msg_id] -= 1
+                return R.MAV_RESULT_ACCEPTED
             if interval_us < 0:
                 self.intervals.pop(msg_id, None)
             elif interval_us == 0:
@@ -786,8 +907,8 @@ class MockAutopilot:
         reason = None
         if self.arming_refusal is not None:
             reason = self.arming_refusal
-        elif not self.ready:
-            reason = p.not_ready_reason
+        elif (not_armable := self._not_armable()) is not None:
+            reason = not_armable
         elif not self.fence.allows(self.lat, self.lon):
             reason = p.outside_fence_reason
         elif p.armable_modes is not None and self.mode_name not in p.armable_modes:
@@ -873,6 +994,11 @@ class MockAutopilot:
             name = pid.rstrip("\x00")
             if name in self.params:
                 self.params[name] = float(msg.param_value)
-                if name == "MPC_XY_CRUISE" and msg.param_value > 0:
-                    self.speed = float(msg.param_value)
+                physics = self.personality.physics_params.get(name)
+                if physics is not None and msg.param_value > 0:
+                    attribute, scale = physics
+                    setattr(self, attribute, float(msg.param_value) * scale)
+                    for other, (attr, sc) in self.personality.physics_params.items():
+                        if attr == attribute:
+                            self.params[other] = getattr(self, attr) / sc
                 value(name)

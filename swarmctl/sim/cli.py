@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import click
 
+from swarmctl.bounds import KEY_MAX_BYTES, read_limited, real, whole
 from swarmctl.errors import InputError
 from swarmctl.mavlink.codec import load_signing_key, parse_connection
 
@@ -20,13 +22,15 @@ def parse_home(text: str) -> tuple[float, float, float]:
         lat, lon, alt = (float(p) for p in parts)
     except ValueError:
         raise InputError(f"--home {text!r}: not numbers; {fix}") from None
-    if not (math.isfinite(alt) and -90 <= lat <= 90 and -180 <= lon <= 180):
-        raise InputError(f"--home {text!r}: latitude must be in -90..90 and longitude in -180..180; {fix}")
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180 and -500 <= alt <= 9000):
+        raise InputError(
+            f"--home {text!r}: latitude must be in -90..90, longitude in -180..180 and altitude in -500..9000 m; {fix}"
+        )
     return lat, lon, alt
 
 
 @click.command("mock-vehicle")
-@click.option("--sysid", type=int, default=1, show_default=True, help="MAVLink system id (1..255).")
+@click.option("--sysid", type=whole(1, 255), default=1, show_default=True, help="MAVLink system id (1..255).")
 @click.option(
     "--connect",
     "connection",
@@ -38,10 +42,10 @@ def parse_home(text: str) -> tuple[float, float, float]:
     "--home", default="-35.363262,149.165237,584", show_default=True, help="Home LAT,LON,ALT (degrees, metres AMSL)."
 )
 @click.option("--autopilot", type=click.Choice(["ardupilot", "px4"]), default="ardupilot", show_default=True)
-@click.option("--speed", type=float, default=5.0, show_default=True, help="Horizontal speed, m/s.")
+@click.option("--speed", type=real(0, 100, above=True), default=5.0, show_default=True, help="Horizontal speed, m/s.")
 @click.option(
     "--speedup",
-    type=float,
+    type=real(0, 100, above=True),
     default=1.0,
     show_default=True,
     help="Simulated seconds per wall-clock second (physics only; link timing stays real).",
@@ -54,19 +58,21 @@ def parse_home(text: str) -> tuple[float, float, float]:
 )
 @click.option(
     "--ready-after",
-    type=float,
+    type=real(0, 3600),
     default=5.0,
     show_default=True,
     help="Simulated seconds after boot before the pre-arm checks pass.",
 )
 @click.option(
     "--gcs-failsafe",
-    type=float,
+    type=real(0, 3600),
     default=5.0,
     show_default=True,
     help="Seconds without a controller heartbeat before RTL (0 disables).",
 )
-@click.option("--duration", type=float, default=0.0, help="Stop after this many seconds (0: run until interrupted).")
+@click.option(
+    "--duration", type=real(0, 1e7), default=0.0, help="Stop after this many seconds (0: run until interrupted)."
+)
 def mock_vehicle_command(
     sysid: int,
     connection: str,
@@ -82,16 +88,16 @@ def mock_vehicle_command(
     """Run a mock ArduCopter or PX4 vehicle that speaks MAVLink over a real socket."""
     from swarmctl.sim.autopilot import MockAutopilot
 
-    if not 1 <= sysid <= 255:
-        raise InputError(f"--sysid {sysid}: a MAVLink system id is 1..255")
-    if not speed > 0 or not speedup > 0:
-        raise InputError("--speed and --speedup must be positive numbers")
     parse_connection(connection, "--connect")
-    key = load_signing_key(signing_key) if signing_key else None
+    key = None
+    if signing_key:
+        read_limited(Path(signing_key), "signing key file", KEY_MAX_BYTES, "--signing-key")
+        key = load_signing_key(signing_key)
+    home_position = parse_home(home)
     mock = MockAutopilot(
         sysid,
         connection,
-        home=parse_home(home),
+        home=home_position,
         autopilot=autopilot,
         speed=speed,
         speedup=speedup,

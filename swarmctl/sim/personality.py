@@ -2,9 +2,10 @@
 
 A personality is built on the firmware's description (swarmctl/mavlink/autopilots: the MAV_AUTOPILOT
 id, the mode table, the mode swarmctl commands in, the answer to an arm that is not ready) and adds
-what only the vehicle side shows: heartbeat flags, the streams sent unasked, parameter defaults,
-status texts, the rules for changing mode, take-off and reposition, the fence's switch and its breach
-action, the answers to a reboot, and the AUTOPILOT_VERSION it reports. `MockAutopilot` asks its
+what only the vehicle side shows: heartbeat flags, the streams sent unasked, its boot (the stages a
+real one goes through before it can arm, and their status texts), parameter defaults (and the ones
+that set the mock's speeds), the rules for changing mode, arming, take-off and reposition, the fence's
+switch and its breach action, the answers to a reboot, and the AUTOPILOT_VERSION it reports. `MockAutopilot` asks its
 personality wherever the two firmwares differ; it never compares names.
 """
 
@@ -40,11 +41,23 @@ class Personality(abc.ABC):
     boot_mode: ClassVar[str]  # the mode after boot
     default_streams: ClassVar[Mapping[int, float]]  # message id -> interval (s) sent without a request
     params: ClassVar[Mapping[str, float]]  # parameter defaults
+    # parameters that are the mock's own speeds: name -> (MockAutopilot attribute, SI units per unit);
+    # the mock writes its speeds into them at start and follows a PARAM_SET of one
+    physics_params: ClassVar[Mapping[str, tuple[str, float]]] = {}
+    # the boot, as fractions of the time the vehicle takes to be ready to arm in the mode swarmctl flies
+    # it in (`ready_after`, or the slow-EKF fault's time): "streams" requested telemetry starts, "standby"
+    # the heartbeat's system_status leaves BOOT, "gps" a GPS fix (positions are reported), "origin" home
+    # is set (HOME_POSITION), "manual" the pre-arm checks pass in a mode that needs no position
+    stages: ClassVar[Mapping[str, float]]
+    stage_texts: ClassVar[Mapping[str, tuple[str, ...]]] = {}  # STATUSTEXTs at each stage (and "ready")
     position_before_ready: ClassVar[bool]  # GLOBAL_POSITION_INT (zeros) is sent before a position fix
-    ready_texts: ClassVar[tuple[str, ...]] = ()  # STATUSTEXTs when the pre-arm checks pass
     armable_modes: ClassVar[frozenset[str] | None] = None  # None: arming is not limited by mode
+    position_modes: ClassVar[frozenset[str]] = frozenset()  # modes that need a position to arm in
     arm_prefix: ClassVar[str]  # STATUSTEXT prefix of a refused arm
-    not_ready_reason: ClassVar[str]  # why arming is refused before the pre-arm checks pass
+    prearm_prefix: ClassVar[str | None] = None  # prefix of the periodic pre-arm failure texts (None: none)
+    not_ready_reason: ClassVar[str]  # why arming is refused before the vehicle is ready
+    boot_reason: ClassVar[str] = ""  # why, in a mode without position, before the "manual" stage
+    console: ClassVar[tuple[bytes, bytes]] = (b"", b"")  # TCP console text: before MAVLink, during boot
     outside_fence_reason: ClassVar[str]
     disarm_flying_text: ClassVar[str]
     landed_text: ClassVar[str]  # STATUSTEXT when it disarms on landing
@@ -107,18 +120,55 @@ class ArduPilotPersonality(Personality):
     autopilot = ARDUPILOT
     boot_mode = "STABILIZE"
     default_streams: Mapping[int, float] = {}  # a fresh ArduPilot sends only heartbeats
-    params: Mapping[str, float] = {  # ArduCopter's fence parameters, at their defaults
+    params: Mapping[str, float] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return
         "FENCE_ENABLE": 0.0,
         "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
         "FENCE_RADIUS": 300.0,
         "FENCE_ACTION": 1.0,
         "FENCE_MARGIN": 2.0,
+        "WPNAV_SPEED": 1000.0,  # cm/s; WPNAV_*, LAND_SPEED*, RTL_ALT follow the mock's speeds
+        "WPNAV_ACCEL": 250.0,  # the mock accelerates at once: its moves are quicker than this says
+        "WPNAV_SPEED_UP": 250.0,
+        "WPNAV_SPEED_DN": 150.0,
+        "LAND_SPEED": 150.0,  # the mock lands at one rate (ArduCopter: 50 below LAND_ALT_LOW)
+        "LAND_SPEED_HIGH": 150.0,
+        "LAND_ALT_LOW": 1000.0,
+        "RTL_ALT": 1500.0,
+        "RTL_SPEED": 0.0,
+        "RTL_LOIT_TIME": 0.0,  # ms; the mock does not wait over home (ArduCopter: 5000)
+        "MAV_SYSID": 1.0,
+        "MAV_GCS_SYSID": 255.0,
     }
-    position_before_ready = True  # zeros until the EKF has an origin
-    ready_texts = ("EKF3 IMU0 origin set", "ArduPilot Ready")
+    physics_params = {
+        "WPNAV_SPEED": ("speed", 0.01),
+        "WPNAV_SPEED_UP": ("climb_rate", 0.01),
+        "WPNAV_SPEED_DN": ("descent_rate", 0.01),
+        "LAND_SPEED": ("descent_rate", 0.01),
+        "LAND_SPEED_HIGH": ("descent_rate", 0.01),
+        "RTL_ALT": ("rtl_alt", 0.01),
+    }
+    # ArduCopter 4.7 SITL at x1, ready to arm in GUIDED 41.3 s after boot: "ArduPilot Ready" (streams)
+    # 2.4 s, STANDBY 2.9 s, GPS fix 10 s, EKF origin and home 19.9 s, pre-arm checks pass in STABILIZE
+    # 23.5 s, the EKF uses the GPS at 41.3 s
+    stages = {"streams": 0.06, "standby": 0.07, "gps": 0.25, "origin": 0.48, "manual": 0.57}
+    stage_texts = {
+        "streams": ("ArduPilot Ready", "AHRS: DCM active"),
+        "gps": ("GPS 1: detected u-blox",),
+        "origin": ("EKF3 IMU0 origin set", "Field Elevation Set: {alt:.0f}m"),
+        "ready": ("EKF3 IMU0 is using GPS",),
+    }
+    position_before_ready = True  # lat/lon 0 until the GPS has a fix
     armable_modes = frozenset({"STABILIZE", "GUIDED", "LOITER", "ALT_HOLD", "POSHOLD"})
-    arm_prefix = "PreArm"
+    position_modes = frozenset({"GUIDED", "RTL", "LOITER", "AUTO", "POSHOLD", "SMART_RTL"})
+    arm_prefix = "Arm"  # what SITL says to a refused arm command
+    prearm_prefix = "PreArm"  # what its 1 Hz pre-arm checks say, every 30 s
     not_ready_reason = "Need Position Estimate"
+    boot_reason = "AHRS: waiting for home"
+    console = (
+        b"\n\nInit ArduCopter V4.7.0-dev (mock)\n\nFree RAM: 524288\nBooting 0/0\n"
+        b"Firmware change: erasing EEPROM...\ndone.\n0 0 0 AP_Logger_File: buffer size=204800\n",
+        b"Init Gyro**\n",
+    )
     outside_fence_reason = "vehicle outside fence"
     disarm_flying_text = "Disarm: vehicle is flying"
     landed_text = "Disarming motors"
@@ -134,7 +184,6 @@ class ArduPilotPersonality(Personality):
     breach_text = "Fence breached: RTL"
     version = (4 << 24) | (5 << 16)
     capabilities = _CAPABILITIES | MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
-    _needs_position = frozenset({"GUIDED", "RTL", "LOITER", "AUTO", "SMART_RTL"})
 
     def base_mode(self, custom_mode: int) -> int:
         # as ArduCopter SITL sends them: 89 disarmed, 217 armed (log reference)
@@ -150,7 +199,8 @@ class ArduPilotPersonality(Personality):
         if custom_mode not in self.autopilot.modes.values():
             mock.statustext("Flight mode change failed", MAV.MAV_SEVERITY_WARNING)
             return MAV.MAV_RESULT_FAILED
-        if name in self._needs_position and not mock.ready:
+        # disarmed, ArduCopter takes any mode (its arming checks decide); armed, a position mode needs one
+        if name in self.position_modes and not mock.ready and mock.armed:
             mock.statustext(f"Flight mode change failed: {name} requires position", MAV.MAV_SEVERITY_WARNING)
             return MAV.MAV_RESULT_FAILED
         return None
@@ -190,7 +240,21 @@ class PX4Personality(Personality):
         "COM_OF_LOSS_T": 1.0,
         "SYS_AUTOSTART": 4001.0,
         "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
+        "MPC_ACC_HOR": 3.0,  # the mock accelerates at once
+        "MPC_TKO_SPEED": 2.5,  # MPC_TKO_SPEED, MPC_Z_V_AUTO_DN, MPC_LAND_SPEED follow the mock's speeds
+        "MPC_Z_V_AUTO_DN": 1.5,
+        "MPC_LAND_SPEED": 1.5,
+        "MPC_LAND_ALT2": 5.0,
+        "RTL_LAND_DELAY": 0.0,
     }
+    physics_params = {
+        "MPC_XY_CRUISE": ("speed", 1.0),
+        "MPC_TKO_SPEED": ("climb_rate", 1.0),
+        "MPC_Z_V_AUTO_DN": ("descent_rate", 1.0),
+        "MPC_LAND_SPEED": ("descent_rate", 1.0),
+    }
+    # position, home and the pre-arm checks all at once; telemetry streams from the start
+    stages = {"streams": 0.0, "standby": 1.0, "gps": 1.0, "origin": 1.0, "manual": 1.0}
     position_before_ready = False  # PX4 publishes no global position before it has one
     arm_prefix = "Arming denied"
     not_ready_reason = "Global position required"

@@ -1,5 +1,8 @@
 """A simulated swarm for the demo and the tests: mock autopilots over loopback UDP carrying a hidden
-scenario, a loopback radio for the knowledge channel, and the MissionPlan that flies them.
+scenario in simulated detectors (or no detectors: a coverage search), and the MissionPlan that flies
+them: in ground mode (every vehicle from one process, knowledge on the in-process bus, with the
+swarm's channel model), or with the loopback radio as the knowledge channel of agents in separate
+processes (`plan(..., radio=True)`).
 
 The controller side is the real one: it talks to the mocks over UDP exactly as it would to real
 vehicles and learns about targets only from the mocks' detector reports.
@@ -18,7 +21,7 @@ from swarmctl.geo.fence import farthest_metres, fence_polygon
 from swarmctl.mavlink.autopilots.base import autopilot_named
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.plan import MissionPlan, make_plan
-from swarmctl.mission.spec import DEMO_SETTINGS, MissionSpec, VehicleSpec
+from swarmctl.mission.spec import DEMO_SETTINGS, ON_LINK, MissionSpec, VehicleSpec
 from swarmctl.sim.autopilot import MockAutopilot
 from swarmctl.sim.detector import FOV_CELLS, SimDetector
 from swarmctl.sim.radio import Radio
@@ -75,7 +78,9 @@ def hide_targets(grid: Any, count: int, seed: int, avoid: list[tuple[int, int]],
 @dataclass
 class SimSwarm:
     """Mock vehicles (ArduPilot by default; "px4" entries in `autopilots` fly through MAVSDK) at
-    distinct launch cells of `grid`, with `targets` hidden in their detectors."""
+    distinct launch cells of `grid`, with `targets` hidden in their detectors (`carry_detectors=False`:
+    no detectors, the mission is a coverage search). `channel` is the knowledge channel model: of the
+    in-process bus in ground mode, of the loopback radio with `plan(..., radio=True)`."""
 
     grid: Any
     uavs: int = 3
@@ -92,6 +97,7 @@ class SimSwarm:
     # the mock ArduPilots' FENCE_RADIUS (their circle fence round home); None: as a vehicle set up for
     # this area would have it, reaching the grid's fence from the launch cell (at least the default 300 m)
     fence_radius: float | None = None
+    carry_detectors: bool = True
     mocks: list[MockAutopilot] = field(default_factory=list)
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
@@ -107,16 +113,16 @@ class SimSwarm:
 
     def start(self) -> SimSwarm:
         try:
-            self.radio = Radio(self.channel or Channel("ideal"), seed=self.seed)
             for i, cell in enumerate(self.starts):
                 lat, lon = self.grid.cell_to_latlon(*cell)
                 autopilot = self.autopilots[i]
                 sysid = i + 1
-                detector = None
+                detector = None  # a PX4's detector socket (an ArduPilot's reports come on its link)
                 if autopilot_named(autopilot).own_connection:  # a PX4: MAVSDK on a UDP port of its own
                     port = free_udp_port()
                     connect, connection = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
-                    detector = ("127.0.0.1", free_udp_port())
+                    if self.carry_detectors:
+                        detector = ("127.0.0.1", free_udp_port())
                 else:
                     connect, connection = "udpin:127.0.0.1:0", None
                 mock = MockAutopilot(
@@ -132,28 +138,29 @@ class SimSwarm:
                 )
                 if "FENCE_RADIUS" in mock.params:  # ArduPilot's circle fence round home
                     mock.params["FENCE_RADIUS"] = self._fence_radius(lat, lon)
-                det = SimDetector(
-                    self.grid,
-                    self.targets,
-                    i,
-                    self.mission_id,
-                    self.grid.altitude if self.altitude is None else self.altitude,
-                    fov=FOV_CELLS if self.fov is None else self.fov,
-                    udp=detector,
-                )
-                det.attach(mock)
-                self.detectors.append(det)
+                if self.carry_detectors:
+                    det = SimDetector(
+                        self.grid,
+                        self.targets,
+                        i,
+                        self.mission_id,
+                        self.grid.altitude if self.altitude is None else self.altitude,
+                        fov=FOV_CELLS if self.fov is None else self.fov,
+                        udp=detector,
+                    )
+                    det.attach(mock)
+                    self.detectors.append(det)
                 mock.start()
                 self.mocks.append(mock)
                 if connection is None:
                     connection = f"udpout:127.0.0.1:{mock.local_port}"
+                if not self.carry_detectors:
+                    sensor = None
+                else:
+                    sensor = ON_LINK if detector is None else f"udp:{detector[0]}:{detector[1]}"
                 self.specs.append(
                     VehicleSpec(
-                        name=f"uav{sysid}",
-                        connection=connection,
-                        sysid=sysid,
-                        autopilot=autopilot,
-                        detector=None if detector is None else f"udp:{detector[0]}:{detector[1]}",
+                        name=f"uav{sysid}", connection=connection, sysid=sysid, autopilot=autopilot, detector=sensor
                     )
                 )
         except BaseException:
@@ -169,19 +176,24 @@ class SimSwarm:
         reach = farthest_metres(self._fence, lat, lon)
         return float(max(300, math.ceil(reach / 50.0) * 50))
 
-    def plan(self, policy: Any, base: MissionSpec | None = None, **settings: Any) -> MissionPlan:
-        """The plan that flies this swarm (see `sim_plan`); its detectors then sense at the plan's
-        altitude and fov."""
-        assert self.radio is not None, "start() the swarm first"
+    def plan(self, policy: Any, base: MissionSpec | None = None, radio: bool = False, **settings: Any) -> MissionPlan:
+        """The plan that flies this swarm (see `sim_plan`): ground mode, knowledge on the in-process bus
+        with the swarm's channel model; with `radio`, the loopback radio (started here, with that
+        model) is the plan's knowledge channel, for controllers in separate processes (give each its
+        `only`). The detectors then sense at the plan's altitude and fov."""
+        assert self.mocks, "start() the swarm first"
         if self.altitude is not None:
             settings.setdefault("altitude", self.altitude)
         if self.fov is not None:
             settings.setdefault("footprint_m", self.fov * self.grid.cell)
+        if radio and self.radio is None:
+            self.radio = Radio(self.channel or Channel("ideal"), seed=self.seed)
         plan = sim_plan(
             self.grid,
             self.specs,
-            self.radio.address,
             policy,
+            channel=self.radio.address if radio else None,
+            bus_channel=self.channel,
             base=base,
             seed=self.seed,
             mission_id=self.mission_id,
@@ -210,20 +222,23 @@ class SimSwarm:
 def sim_plan(
     grid: Any,
     vehicles: list[VehicleSpec],
-    radio: tuple[str, int],
     policy: Any,
     /,
     *,
+    channel: tuple[str, int] | None = None,
+    bus_channel: Channel | None = None,
     base: MissionSpec | None = None,
     seed: int = 0,
     mission_id: int = 7,
     mission_file: Any = None,
     **settings: Any,
 ) -> MissionPlan:
-    """The plan for simulated vehicles on `grid` sharing through the loopback radio at `radio`:
-    `base`'s settings (a mission file's; else the defaults) under DEMO_SETTINGS under `settings`
-    (flat spec keys: time_limit, end_action, altitude, fence, grid: the grid's file, for the
-    recording). `policy` is a FieldPolicy or its spec string (built here, once)."""
+    """The plan for simulated vehicles on `grid`: `base`'s settings (a mission file's; else the
+    defaults) under DEMO_SETTINGS under `settings` (flat spec keys: time_limit, end_action, altitude,
+    fence, grid: the grid's file, for the recording). Knowledge: on the in-process bus with
+    `bus_channel` (None: ideal), and, with `channel` (the loopback radio's address), that address as
+    the [knowledge] channel (the base's channel is not used: it is no address of this swarm). `policy`
+    is a FieldPolicy or its spec string (built here, once)."""
     if isinstance(policy, str):
         from swarmctl.mission.decide import FieldPolicy
 
@@ -232,9 +247,11 @@ def sim_plan(
         name=base.mission.name if base else "demo",
         id=mission_id,
         policy=policy.spec,
-        channel=Endpoint("udpout", radio[0], int(radio[1])),
+        channel=Endpoint("udpout", channel[0], int(channel[1])) if channel is not None else None,
         signing_key=None,  # the mock vehicles do not sign
     )
     where = str(mission_file) if mission_file is not None else "demo"
     spec = MissionSpec.build(vehicles, base, where, **{**DEMO_SETTINGS, **own, **settings})
-    return make_plan(spec, grid=grid, policy=policy, seed=seed, mission_file=mission_file)
+    plan = make_plan(spec, grid=grid, policy=policy, seed=seed, mission_file=mission_file)
+    plan.bus_channel = bus_channel
+    return plan

@@ -16,7 +16,8 @@ trained with in its checkpoint, so the field observes exactly as the simulator d
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+import copy
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 from typing import Any
 
@@ -25,6 +26,8 @@ import numpy as np
 from swarmctl.world.taken import remove_taken_targets
 
 PAPER_VARIANT = "venturini2021"  # the paper's F x F, 3-channel observation
+GLOBAL_LOCAL_VARIANT = "global-local-v1"  # the paper's window + the whole map pooled (world.observe_global)
+VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7}  # observation channels of each variant
 
 
 @dataclass(frozen=True)
@@ -264,6 +267,15 @@ class Beliefs:
         for arr in (self.explored, self.obstacles, self.targets, self.positions, self.hovering):
             same &= (arr == arr[:, :1]).reshape(self.batch, -1).all(1)
         return same
+
+    def with_settings(self, **changes: Any) -> Beliefs:
+        """The same beliefs under other observation settings (e.g. another variant); arrays are shared."""
+        other = copy.copy(self)
+        other.settings = replace(self.settings, **changes)
+        other._maps = dict(self._maps)
+        if "rho" in changes:  # the value channel depends on it
+            other._maps["value"] = None
+        return other
 
     def select(self, batches: np.ndarray) -> Beliefs:
         """The beliefs of some batches only (`batches`: bool mask or indices over B)."""

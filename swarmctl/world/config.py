@@ -6,9 +6,15 @@ import math
 from dataclasses import asdict, dataclass
 
 from swarmctl.errors import ScenarioError
+from swarmctl.world.beliefs import VARIANT_CHANNELS
 
 SCENARIOS = ("sparse", "cluster")
 CHANNELS = ("ideal", "none", "model", "fixed")
+MAX_MAP = 4000  # cells per side, as a grid file (swarmctl.geo.defaults.MAX_GRID_SIDE)
+MAX_WINDOW = 256  # the Q-network takes windows of 8..256
+MAX_UAVS = 1000
+MAX_FOV = 100.0  # cells
+MAX_CELL_SIZE = 10_000.0  # metres
 
 
 @dataclass(frozen=True)
@@ -39,6 +45,8 @@ class WorldConfig:
     cell_size: float = 10.0  # metres per cell, for the channel model
     guard: bool = False  # refuse moves into a cell another vehicle holds or enters (controller's guard)
     remove_taken: bool = False  # observations: targets others sit on leave the value channel (world.taken)
+    variant: str = "venturini2021"  # observation variant: the paper's window, or "global-local-v1" (+ the whole map)
+    explore_reward: float = 0.0  # reward per sensing disc of cells a vehicle newly explores (0: the paper's reward)
 
     def __post_init__(self) -> None:
         self.validate()
@@ -46,20 +54,27 @@ class WorldConfig:
     def validate(self) -> None:
         """Raise ScenarioError naming the parameter and its limit for any impossible request."""
         m = self.map_size
+        for name, value in asdict(self).items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise ScenarioError(f"{name} = {value}: must be a finite number")
+        if self.variant not in VARIANT_CHANNELS:
+            raise ScenarioError(f"variant {self.variant!r} is unknown: use one of {', '.join(VARIANT_CHANNELS)}")
+        if not 0.0 <= self.explore_reward <= 10.0:
+            raise ScenarioError(f"explore reward {self.explore_reward} must be a number in [0, 10]")
         if self.scenario not in SCENARIOS:
             raise ScenarioError(f"--scenario {self.scenario!r} is unknown: use one of {', '.join(SCENARIOS)}")
-        if m < 1:
-            raise ScenarioError(f"--map {m} is too small: the map side M must be >= 1")
-        if self.window < 1:
-            raise ScenarioError(f"--window {self.window} is too small: F must be >= 1")
-        if self.uavs < 1:
-            raise ScenarioError(f"--uavs {self.uavs}: at least 1 vehicle is needed")
+        if not 1 <= m <= MAX_MAP:
+            raise ScenarioError(f"--map {m}: the map side M must be 1..{MAX_MAP}")
+        if not 1 <= self.window <= MAX_WINDOW:
+            raise ScenarioError(f"--window {self.window}: the observation window F must be 1..{MAX_WINDOW}")
+        if not 1 <= self.uavs <= MAX_UAVS:
+            raise ScenarioError(f"--uavs {self.uavs}: give 1..{MAX_UAVS} vehicles")
         if self.targets < 1:
             raise ScenarioError(f"--targets {self.targets}: at least 1 target is needed")
         if not 1 <= self.clusters <= self.targets:
             raise ScenarioError(f"--clusters {self.clusters} must be between 1 and --targets ({self.targets})")
-        if self.fov < 0:
-            raise ScenarioError(f"--fov {self.fov} must be >= 0")
+        if not 0 <= self.fov <= MAX_FOV:
+            raise ScenarioError(f"--fov {self.fov}: the sensing radius must be 0..{MAX_FOV:g} cells")
         if not 0.0 <= self.obstacles <= 0.4:
             raise ScenarioError(f"--obstacles {self.obstacles} cannot be placed: eta must be in [0, 0.4]")
         if not 1 <= self.obstacle_min <= self.obstacle_max:
@@ -68,8 +83,10 @@ class WorldConfig:
             raise ScenarioError(f"--channel {self.channel!r} is unknown: use one of {', '.join(CHANNELS)}")
         if not 0.0 <= self.loss <= 1.0:
             raise ScenarioError(f"packet loss {self.loss} must be a probability in [0, 1]")
-        if self.cell_size <= 0:
-            raise ScenarioError(f"--cell-size {self.cell_size} must be > 0 metres")
+        if not 0 < self.cell_size <= MAX_CELL_SIZE:
+            raise ScenarioError(f"--cell-size {self.cell_size}: must be > 0 and at most {MAX_CELL_SIZE:g} metres")
+        if not self.sigma2 > 0:
+            raise ScenarioError(f"sigma2 = {self.sigma2}: the value-map spread must be > 0")
         if self.targets < self.uavs:
             raise ScenarioError(
                 f"--targets {self.targets} < --uavs {self.uavs}: success needs a distinct target for every vehicle"

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarmctl.errors import ScenarioError
-from swarmctl.world.beliefs import Beliefs, ObservationSettings
+from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs, ObservationSettings
 from swarmctl.world.channel import Channel
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.guard import guard_moves
@@ -161,9 +161,23 @@ class SearchEnv:
         self.duration[newly] = self.t
         if self.stop_at_success:
             self.done |= success
+        fresh = self._fresh_cells() if cfg.explore_reward else None
         self._sense_and_share()
+        if fresh is not None:  # the exploration reward: cells this vehicle's disc newly showed it, in discs
+            reward += np.float32(cfg.explore_reward) * fresh / np.float32(len(self._offsets))
         obs = self.last_observations = self.observe() if self.observations else None
         return obs, reward, success, StepInfo(valid=valid, collided=collided, on_target=on_target, refused=refused)
+
+    def _fresh_cells(self) -> np.ndarray:
+        """(B, U) float32: cells of each vehicle's sensing disc at its new cell that it had not explored."""
+        b, u, w, h = self.batch, self.uavs, self.width, self.height
+        disc = self._disc_table[self._cell]  # (B, U, D); off-map entries repeat the centre
+        seen = self.explored.reshape(b, u, w * h)[self._bi[:, :, None], np.arange(u)[None, :, None], disc]
+        order = np.argsort(disc, axis=-1)
+        cells = np.take_along_axis(disc, order, axis=-1)
+        first = np.ones(disc.shape, dtype=bool)  # each cell counted once (off-map entries repeat the centre)
+        first[..., 1:] = cells[..., 1:] != cells[..., :-1]
+        return (~np.take_along_axis(seen, order, axis=-1) & first).sum(-1).astype(np.float32)
 
     # ----- knowledge ------------------------------------------------------------------------
     def _sense_and_share(self) -> None:
@@ -250,8 +264,9 @@ class SearchEnv:
         Without taken-target removal this is observe(self.beliefs()) built straight from the arrays
         behind the beliefs (the same builder, observe.build_observations, on the same values: the
         policy conformance test holds them equal), which saves a third of a step at batch 1."""
-        if self.cfg.remove_taken if remove_taken is None else remove_taken:
-            return observe(self.beliefs(), True)
+        taken = self.cfg.remove_taken if remove_taken is None else remove_taken
+        if taken or self.settings.variant != PAPER_VARIANT:
+            return observe(self.beliefs(), taken)
         value = np.ones(self.explored.shape, dtype=np.float32)
         np.copyto(value, self._seen_value[:, None], where=self.explored)
         others = (self.known_pos[..., 0] >= 0) & self._not_me
@@ -268,3 +283,22 @@ def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:
     inside = (cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)
     centre = (xs.ravel() * height + ys.ravel())[:, None]
     return np.where(inside, cx * height + cy, centre)
+
+
+# Peak bytes of a SearchEnv and a policy stepping it, measured with tracemalloc (numpy arrays) and
+# rounded up: the disc table is built through about four int64 temporaries per disc cell; per episode
+# and cell, each vehicle's knowledge and the policies' maps took at most 95 B (LA(4); frontier 45 B).
+DISC_BYTES_PER_CELL_OFFSET = 32
+EPISODE_BYTES_PER_CELL = 32
+VEHICLE_BYTES_PER_CELL = 128
+OBSERVATION_COPIES = 3  # an observation batch, the next one and the network's input
+
+
+def planned_bytes(cfg: WorldConfig, batch: int, cells: int | None = None) -> int:
+    """About how much memory B = `batch` episodes of `cfg` take while a policy steps them, observations
+    included (`cells`: the map's cell count when it is not M x M, e.g. a real grid)."""
+    cells = cfg.map_size**2 if cells is None else int(cells)
+    disc = DISC_BYTES_PER_CELL_OFFSET * len(fov_offsets(cfg.fov)) * cells
+    per_episode = cells * (EPISODE_BYTES_PER_CELL + VEHICLE_BYTES_PER_CELL * cfg.uavs)
+    per_episode += OBSERVATION_COPIES * cfg.uavs * 3 * cfg.window**2 * 4 + 16 * cfg.uavs**2
+    return disc + batch * per_episode

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from swarmctl.world.beliefs import Beliefs
+from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs
 
 
 def window_corners(pos: np.ndarray, width: int, height: int, window: int) -> np.ndarray:
@@ -26,9 +26,14 @@ def window_corners(pos: np.ndarray, width: int, height: int, window: int) -> np.
 
 
 def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
-    """(B, U, 3, F, F) float32 observations of every decider (F = beliefs.settings.window); with
-    remove_taken the targets others sit on leave the value channel (swarmctl.world.taken)."""
+    """(B, U, C, F, F) float32 observations of every decider (F = beliefs.settings.window; C = 3 for the
+    paper's variant, 7 for the global-local one: swarmctl.world.observe_global); with remove_taken the
+    targets others sit on leave the value channel (swarmctl.world.taken)."""
     s = beliefs.settings
+    if s.variant != PAPER_VARIANT:
+        from swarmctl.world.observe_global import observe_global_local
+
+        return observe_global_local(beliefs, remove_taken)
     return build_observations(
         beliefs.value_channel(remove_taken), beliefs.pos, beliefs.positions, beliefs.others, s.window, s.rho
     )

@@ -190,8 +190,11 @@ def generate_scenario(cfg: WorldConfig, seed: int, episode: int, blocked: np.nda
 def value_map(targets: np.ndarray, width: int, height: int, sigma2: float = 1.0, cutoff: float = 0.01) -> np.ndarray:
     """phi(m) = max_k exp(-||m - z_k||^2 / (2 sigma^2)), with phi < cutoff set to 0.
 
-    `targets` is (..., K, 2); returns (..., width, height) float32.
+    `targets` is (..., K, 2); returns (..., width, height) float32 (all 0 when K is 0: nothing to find).
     """
+    targets = np.asarray(targets)
+    if targets.shape[-2] == 0:
+        return np.zeros((*targets.shape[:-2], width, height), dtype=np.float32)
     xs = np.arange(width, dtype=np.float32)
     ys = np.arange(height, dtype=np.float32)
     tx = targets[..., 0].astype(np.float32)[..., None, None]

@@ -1,11 +1,20 @@
 """ArduPilot Copter over pymavlink: every ArduPilot quirk the controller depends on lives here.
 
-Sequence (as ArduCopter expects it from a GCS or companion computer):
-wait for the pre-arm checks to pass -> GUIDED -> arm -> MAV_CMD_NAV_TAKEOFF to the altitude above home
--> wait for the altitude -> SET_POSITION_TARGET_GLOBAL_INT (frame GLOBAL_RELATIVE_ALT_INT, position-only
-type_mask 3576) -> LAND or RTL. A fresh ArduPilot link sends only heartbeats, so telemetry is requested
-with MAV_CMD_SET_MESSAGE_INTERVAL, and requested again whenever it stops (e.g. after a reboot).
-A geofence goes up with the mission protocol (mission_type FENCE) and is switched on with
+Sequence (as ArduCopter 4.7 SITL showed it, docs/mavlink.md):
+- connect: wait for the first HEARTBEAT, then ask for telemetry with MAV_CMD_SET_MESSAGE_INTERVAL, once
+  per message (a request sent before the first heartbeat is acknowledged and then lost, and the
+  streams only start at "ArduPilot Ready", 1.4 s after it). A message that does not come within its
+  patience, or stops (a reboot), is asked for again, alone; an ACCEPTED ack proves nothing.
+- preflight (`wait_ready`): GUIDED first (ArduCopter takes any mode while disarmed), then wait until
+  it reports it can arm in GUIDED: a GPS fix (GPS_RAW_INT), the EKF's absolute horizontal position
+  without constant-position mode (EKF_STATUS_REPORT), home (HOME_POSITION), and the SYS_STATUS
+  pre-arm bit healthy in a report sent after the switch (in STABILIZE it reads healthy 18 s before
+  GUIDED can arm). Its STATUSTEXTs are reported meanwhile; a timeout names the last reason.
+- arm -> MAV_CMD_NAV_TAKEOFF to the altitude above home -> wait for the altitude ->
+  SET_POSITION_TARGET_GLOBAL_INT (frame GLOBAL_RELATIVE_ALT_INT, position-only type_mask 3576) ->
+  LAND or RTL.
+The speed parameters (descriptions.ARDUPILOT.limit_parameters) are read with PARAM_REQUEST_READ. A
+geofence goes up with the mission protocol (mission_type FENCE) and is switched on with
 MAV_CMD_DO_FENCE_ENABLE (see upload_fence).
 """
 
@@ -15,28 +24,55 @@ import asyncio
 import logging
 import math
 import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from swarmctl.geo.fence import farthest_metres
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
 from swarmctl.mavlink.codec import from_deg_e7, to_deg_e7
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, NotReady
 from swarmctl.mavlink.network import MAV, MavlinkLink
-from swarmctl.mavlink.vehicle import Home, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 
 # Position-only: ignore velocity (bits 3-5), acceleration (6-8), yaw (10) and yaw rate (11).
 TYPE_MASK_POSITION_ONLY = 3576
 PREARM_BIT = MAV.MAV_SYS_STATUS_PREARM_CHECK  # 0x10000000 in SYS_STATUS present/health
+EKF_POSITION_OK = MAV.EKF_POS_HORIZ_ABS  # and not EKF_CONST_POS_MODE
+GPS_3D_FIX = MAV.GPS_FIX_TYPE_3D_FIX
+# ArduPilot runs its pre-arm checks at 1 Hz: the pre-arm bit counts from a SYS_STATUS sent this long
+# after the switch to GUIDED (an earlier one may still carry the STABILIZE result)
+PREARM_LAG_S = 1.0
+# a requested message that has not come (or has stopped) for this long, or three of its periods, is
+# asked for again: SITL starts its streams 1.4 s after the first heartbeat
+STREAM_PATIENCE_S = 3.0
+_WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
-# Telemetry the controller needs: message id -> default rate (Hz). EXTENDED_SYS_STATE is optional.
-TELEMETRY = {
-    MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: None,  # None: the vehicle's telemetry rate
-    MAV.MAVLINK_MSG_ID_HOME_POSITION: 0.5,
-    MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-    MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
-}
+
+@dataclass(frozen=True)
+class Stream:
+    """A telemetry message the driver asks for with SET_MESSAGE_INTERVAL."""
+
+    name: str  # the message type
+    rate_hz: float | None  # None: the vehicle's telemetry rate
+    required: bool = True  # a vehicle refusing it cannot be flown; otherwise the check it serves is skipped
+    after_ekf: bool = False  # sent only once home is set: expected once the EKF has an absolute position
+
+    @property
+    def msg_id(self) -> int:
+        return getattr(MAV, f"MAVLINK_MSG_ID_{self.name}")
+
+
+TELEMETRY = (
+    Stream("GLOBAL_POSITION_INT", None),  # position, for everything
+    Stream("SYS_STATUS", 2.0),  # battery, the pre-arm bit (2 Hz: a fresh one soon after PREARM_LAG_S)
+    Stream("EKF_STATUS_REPORT", 1.0, required=False),  # readiness: the EKF's position estimate
+    Stream("GPS_RAW_INT", 1.0, required=False),  # readiness: the GPS fix
+    Stream("HOME_POSITION", 0.5, after_ekf=True),  # home, which ArduCopter sets again at arming
+)
 
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
 
@@ -93,10 +129,15 @@ class ArduPilotVehicle(Vehicle):
         self.mission_timeout = mission_timeout
         self.owns_link = owns_link
         self.target: Target | None = None
+        self.odometer = Odometer()
         self._target_sent = 0.0
         self._telemetry_task: asyncio.Task | None = None
-        self._requesting = False
-        self.unsupported: set[int] = set()  # telemetry messages the vehicle said it cannot stream
+        self.unsupported: set[str] = set()  # telemetry messages the vehicle refused to stream
+        self.requests: Counter[str] = Counter()  # SET_MESSAGE_INTERVAL sent, per message
+        self._asked: dict[str, float] = {}  # message -> when it was last asked for (time.monotonic())
+        self._expected_since: dict[str, float] = {}  # after_ekf messages: since when they are due
+        self._mode_since: tuple[int | None, float] = (None, 0.0)  # the reported mode and since when
+        self._listening = False
 
     @classmethod
     async def open(
@@ -119,65 +160,172 @@ class ArduPilotVehicle(Vehicle):
         return await self.link.command(self.sysid, command, params, vehicle=self.name, **kw)
 
     async def connect(self, timeout: float = 15.0) -> None:
+        """Wait for the first HEARTBEAT, then ask for the telemetry (TELEMETRY) once; a task asks again
+        for a message that does not come or stops."""
         await self.link.wait_heartbeat(self.sysid, timeout)
+        if not self._listening:
+            self.link.add_listener(self._on_message)
+            self._listening = True
         await self.request_telemetry()
         if self._telemetry_task is None:
             self._telemetry_task = asyncio.create_task(self._keep_telemetry())
 
-    async def request_telemetry(self) -> None:
-        """Ask for GLOBAL_POSITION_INT, HOME_POSITION, SYS_STATUS and EXTENDED_SYS_STATE."""
-        self._requesting = True
-        try:
-            for msg_id, rate in TELEMETRY.items():
-                if msg_id in self.unsupported:
-                    continue
-                try:
-                    await self.link.set_message_interval(
-                        self.sysid,
-                        msg_id,
-                        rate or self.telemetry_rate_hz,
-                        vehicle=self.name,
-                        timeout=self.command_timeout,
-                        retries=self.retries,
-                    )
-                except CommandRejected as exc:
-                    if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
-                        self.unsupported.add(msg_id)
-                        log.info("%s: no EXTENDED_SYS_STATE (%s)", self.name, exc.result)
-                    else:
-                        raise
-        finally:
-            self._requesting = False
+    def _on_message(self, msg: Any) -> None:
+        """Follows this vehicle's reports: positions into the odometer, the mode's changes."""
+        if msg.get_srcSystem() != self.sysid:
+            return
+        mtype = msg.get_type()
+        if mtype == "GLOBAL_POSITION_INT":
+            pos = self.position
+            if pos is not None:
+                self.odometer.add(pos)
+        elif mtype == "HEARTBEAT" and msg.custom_mode != self._mode_since[0]:
+            self._mode_since = (msg.custom_mode, time.monotonic())
+
+    async def request_telemetry(self, streams: tuple[Stream, ...] | list[Stream] = TELEMETRY) -> None:
+        """Ask for these messages (SET_MESSAGE_INTERVAL each). A refusal of a required one raises
+        CommandRejected; an optional one refused is not asked for again (its check is skipped)."""
+        for stream in streams:
+            if stream.name in self.unsupported:
+                continue
+            self._asked[stream.name] = time.monotonic()
+            self.requests[stream.name] += 1
+            try:
+                await self.link.set_message_interval(
+                    self.sysid,
+                    stream.msg_id,
+                    stream.rate_hz or self.telemetry_rate_hz,
+                    vehicle=self.name,
+                    timeout=self.command_timeout,
+                    retries=self.retries,
+                )
+            except CommandRejected as exc:
+                if stream.required:
+                    raise
+                self.unsupported.add(stream.name)
+                log.info("%s: no %s (%s)", self.name, stream.name, exc.result)
+            self._asked[stream.name] = time.monotonic()
+
+    def overdue(self, stream: Stream, now: float) -> bool:
+        """The message should be arriving but has not for its patience (STREAM_PATIENCE_S or three of
+        its periods) since it was asked for, since it was last received, and (HOME_POSITION) since the
+        EKF has had an absolute position."""
+        peer = self.link.peers.get(self.sysid)
+        if peer is None or stream.name in self.unsupported:
+            return False
+        since = 0.0
+        if stream.after_ekf and "EKF_STATUS_REPORT" not in self.unsupported:
+            if not self._ekf_ok(fresh=True):
+                self._expected_since.pop(stream.name, None)
+                return False
+            since = self._expected_since.setdefault(stream.name, now)
+        patience = max(STREAM_PATIENCE_S, 3.0 / (stream.rate_hz or self.telemetry_rate_hz))
+        last = max(peer.received_at.get(stream.name, 0.0), self._asked.get(stream.name, 0.0), since)
+        return now - last > patience
 
     async def _keep_telemetry(self) -> None:
-        """Request telemetry again when position reports stop while heartbeats continue."""
+        """Ask again for the messages that are overdue (each alone), while the vehicle's heartbeats come."""
         while True:
-            await asyncio.sleep(0.5)
-            peer = self.link.peers.get(self.sysid)
-            if peer is None or self.lost or self._requesting:
+            await asyncio.sleep(0.25)
+            if self.lost:
                 continue
-            last = peer.received_at.get("GLOBAL_POSITION_INT", 0.0)
-            stale_after = max(2.0, 3.0 / self.telemetry_rate_hz)
-            if time.monotonic() - last > stale_after:
+            now = time.monotonic()
+            due = [s for s in TELEMETRY if self.overdue(s, now)]
+            if due:
+                log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
                 try:
-                    await self.request_telemetry()
+                    await self.request_telemetry(due)
                 except MavlinkError as exc:
                     log.info("%s: telemetry request failed: %s", self.name, exc)
 
-    async def wait_ready(self, timeout: float = 60.0) -> None:
-        await self.link.wait_heartbeat(self.sysid, timeout)
-        await self._poll(self.ready, timeout, "ready to arm (position, home and pre-arm checks)")
+    # --- readiness -------------------------------------------------------------------------------------
 
-    def ready(self) -> bool:
-        """Position and home known, and the pre-arm checks pass (SYS_STATUS PREARM_CHECK bit)."""
-        if self.position is None or self.home is None or self.lost:
+    def _ekf_ok(self, fresh: bool = False) -> bool:
+        """EKF_STATUS_REPORT says: an absolute horizontal position, not in constant-position mode
+        (`fresh`: and the report is recent, STREAM_PATIENCE_S)."""
+        ekf = self._msg("EKF_STATUS_REPORT")
+        if ekf is None:
             return False
+        if fresh:
+            at = self.link.peer(self.sysid).received_at.get("EKF_STATUS_REPORT", 0.0)
+            if time.monotonic() - at > STREAM_PATIENCE_S:
+                return False
+        return bool(ekf.flags & EKF_POSITION_OK) and not ekf.flags & MAV.EKF_CONST_POS_MODE
+
+    def not_ready(self) -> list[str]:
+        """What the vehicle still lacks to arm in GUIDED (empty: ready)."""
+        if self.lost:
+            return ["its heartbeat"]
+        missing = []
+        mode, since = self._mode_since
+        if self._custom_mode() != ARDUPILOT.custom_mode(ARDUPILOT.command_mode):
+            missing.append(f"mode {ARDUPILOT.command_mode} (in {self.mode})")
+        gps = self._msg("GPS_RAW_INT")
+        if "GPS_RAW_INT" not in self.unsupported and (gps is None or gps.fix_type < GPS_3D_FIX):
+            missing.append("a GPS fix" + ("" if gps is None else f" (fix type {gps.fix_type})"))
+        ekf = self._msg("EKF_STATUS_REPORT")
+        if "EKF_STATUS_REPORT" not in self.unsupported and not self._ekf_ok():
+            flags = "" if ekf is None else f" (EKF_STATUS_REPORT flags {ekf.flags})"
+            missing.append(f"the EKF's position estimate{flags}")
+        if self.home is None:
+            missing.append("home")
+        if self.position is None:
+            missing.append("a position")
         st = self._msg("SYS_STATUS")
         if st is None:
-            return False
-        if st.onboard_control_sensors_present & PREARM_BIT:
-            return bool(st.onboard_control_sensors_health & PREARM_BIT)
-        return True  # firmware without the pre-arm bit: position and home are all we can check
+            missing.append("the pre-arm checks (no SYS_STATUS yet)")
+        elif st.onboard_control_sensors_present & PREARM_BIT:
+            at = self.link.peer(self.sysid).received_at.get("SYS_STATUS", 0.0)
+            if at < since + PREARM_LAG_S or not st.onboard_control_sensors_health & PREARM_BIT:
+                missing.append("the pre-arm checks")
+        return missing
+
+    def ready(self) -> bool:
+        """The vehicle reports it can arm in GUIDED (see not_ready)."""
+        return not self.not_ready()
+
+    async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
+        """GUIDED first, then wait until the vehicle can arm in it (not_ready() is empty). Each
+        STATUSTEXT it sends meanwhile, and each change of what is missing ("waiting for ..."), goes to
+        report(text). NotReady after `timeout` names the last STATUSTEXT of warning severity or worse
+        (PreArm: ..., Arm: ...) and what was still missing."""
+        started = time.monotonic()
+        deadline = started + timeout
+        await self.link.wait_heartbeat(self.sysid, timeout)
+        peer = self.link.peer(self.sysid)
+        heard, waiting, reason, refused = started, "", "", 0.0
+        guided = ARDUPILOT.custom_mode(ARDUPILOT.command_mode)
+        while True:
+            now = time.monotonic()
+            if self._custom_mode() != guided and not self.lost and now - refused > 1.0:
+                try:
+                    await self.set_mode(ARDUPILOT.command_mode)
+                except CommandRejected as exc:  # firmware that wants a position first: try again
+                    refused = time.monotonic()
+                    reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
+                    if report is not None:
+                        report(reason)
+            for at, severity, text in list(peer.statustexts):
+                if at > heard:
+                    heard = at
+                    if severity <= _WARNING:
+                        reason = text
+                    if report is not None:
+                        report(text)
+            missing = self.not_ready()
+            if not missing:
+                return
+            now_waiting = "waiting for " + ", ".join(missing)
+            if now_waiting != waiting:
+                waiting = now_waiting
+                if report is not None:
+                    report(waiting)
+            if time.monotonic() > deadline:
+                raise NotReady(self.name, timeout, f"{reason} ({waiting})" if reason else waiting)
+            try:
+                await self.link.wait_message(lambda m: m.get_srcSystem() == self.sysid, 0.2)
+            except TimeoutError:
+                pass
 
     async def set_mode(self, mode: str, timeout: float = 3.0) -> None:
         name = mode.upper()
@@ -187,7 +335,7 @@ class ArduPilotVehicle(Vehicle):
         await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
 
     async def arm(self, timeout: float = 30.0) -> None:
-        """Arm; ArduPilot answers FAILED (and a STATUSTEXT) while pre-arm checks fail, so retry."""
+        """Arm; ArduPilot answers FAILED (and an "Arm: ..." STATUSTEXT) while it cannot, so retry."""
         deadline = time.monotonic() + timeout
         while True:
             try:
@@ -203,6 +351,13 @@ class ArduPilotVehicle(Vehicle):
     async def disarm(self) -> None:
         await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
 
+    async def read_parameter(self, name: str) -> float:
+        """PARAM_REQUEST_READ by name (CommandTimeout when unanswered: ArduPilot does not answer a name
+        it does not have)."""
+        return await self.link.read_param(
+            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name
+        )
+
     async def takeoff(self, rel_alt: float) -> None:
         try:
             await self._command(MAV.MAV_CMD_NAV_TAKEOFF, 0, 0, 0, math.nan, 0, 0, float(rel_alt))
@@ -217,8 +372,7 @@ class ArduPilotVehicle(Vehicle):
     async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
         start = time.monotonic()
         left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
-        await self.wait_ready(left())
-        await self.set_mode(ARDUPILOT.command_mode)
+        await self.wait_ready(left())  # GUIDED and ready
         await self.arm(min(30.0, left()))
         await self.takeoff(rel_alt)
         pos = self.position
@@ -300,9 +454,7 @@ class ArduPilotVehicle(Vehicle):
         circle fence round home (FENCE_TYPE 2, radius FENCE_RADIUS, default 300 m) that does not hold
         the polygon (the vehicle would breach it inside the search area). swarmctl never changes these
         parameters itself."""
-        read = lambda name: self.link.read_param(  # noqa: E731
-            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name
-        )
+        read = self.read_parameter
         fence_type = int(await read("FENCE_TYPE"))
         if not fence_type & 4:
             raise MavlinkError(
@@ -396,6 +548,9 @@ class ArduPilotVehicle(Vehicle):
             except asyncio.CancelledError:
                 pass
             self._telemetry_task = None
+        if self._listening:
+            self.link.remove_listener(self._on_message)
+            self._listening = False
         if self.owns_link:
             await self.link.close()
 
@@ -441,8 +596,3 @@ class ArduPilotVehicle(Vehicle):
     def battery_remaining(self) -> int | None:
         st = self._msg("SYS_STATUS")
         return None if st is None or st.battery_remaining < 0 else int(st.battery_remaining)
-
-    @property
-    def landed_state(self) -> int | None:
-        m = self._msg("EXTENDED_SYS_STATE")
-        return None if m is None else m.landed_state

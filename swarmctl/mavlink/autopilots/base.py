@@ -3,8 +3,9 @@ finds the description a vehicle's HEARTBEAT names.
 
 An `Autopilot` describes a firmware, not a vehicle: its MAV_AUTOPILOT id, its flight modes
 (HEARTBEAT.custom_mode numbers), which modes mean a pilot has taken over, how long a mode report must
-last before it counts, how it refuses an arm that is not ready yet, what signing means on the path
-swarmctl flies it by, and the driver class that flies it. The controller, the connector and the mock
+last before it counts, how it refuses an arm that is not ready yet, which parameters give a vehicle's
+speeds (and so its timeouts), what signing means on the path swarmctl flies it by, and the driver
+class that flies it. The controller, the connector and the mock
 autopilot ask these questions instead of comparing autopilot names. Nothing here does I/O or imports
 pymavlink or MAVSDK.
 """
@@ -17,6 +18,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING, ClassVar
 
 from swarmctl.errors import InputError
+from swarmctl.mavlink.limits import FlightLimits
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.mavlink.vehicle import Vehicle
@@ -37,6 +39,9 @@ class Autopilot(abc.ABC):
     signing: ClassVar[str]  # what signing means on the path swarmctl flies it by
     arm_refusal: ClassVar[str]  # the MAV_RESULT the autopilot answers an arm with while it is not ready
     driver_path: ClassVar[str]  # "module:Class" of the Vehicle driver
+    # the parameters the driver reads at preflight for `flight_limits` (empty: none can be read, so the
+    # firmware's defaults give every vehicle's timeouts)
+    limit_parameters: ClassVar[tuple[str, ...]] = ()
     # True: the driver opens the vehicle's connection itself (MAVSDK) and cannot share a pymavlink link
     own_connection: ClassVar[bool] = False
 
@@ -68,6 +73,11 @@ class Autopilot(abc.ABC):
     def is_pilot_mode(self, mode: str) -> bool:
         """True when a vehicle reported in `mode` (as its driver names it) is no longer flown by swarmctl:
         the pilot took it over."""
+
+    @abc.abstractmethod
+    def flight_limits(self, values: Mapping[str, float]) -> FlightLimits:
+        """A vehicle's speeds from the `limit_parameters` values read (by name, in the firmware's own
+        units); a parameter missing, or not a usable number, counts as the firmware's default."""
 
     def retries_arm(self, result: str) -> bool:
         """True when an arm refused with this MAV_RESULT name means "not ready yet, try again"."""

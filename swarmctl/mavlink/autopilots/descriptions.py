@@ -6,10 +6,27 @@ registered descriptions (`autopilot_for_heartbeat` and `autopilot_named` find th
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from types import MappingProxyType
 
 from swarmctl.mavlink.autopilots.base import Autopilot, register
+from swarmctl.mavlink.limits import FlightLimits
+
+
+def _value(values: Mapping[str, float], name: str, default: float, scale: float = 1.0) -> float:
+    """values[name] x scale; the default (already in SI units) when it is missing, negative or not finite."""
+    raw = values.get(name)
+    if raw is None or not math.isfinite(raw) or raw < 0:
+        return default
+    return float(raw) * scale
+
+
+def _speed(values: Mapping[str, float], name: str, default: float, scale: float = 1.0) -> float:
+    """A speed (or acceleration): as `_value`, and 0 counts as missing too."""
+    value = _value(values, name, default, scale)
+    return value if value > 0 else default
+
 
 # --- ArduCopter flight modes (HEARTBEAT.custom_mode = the mode number) -------------------------------
 
@@ -50,8 +67,24 @@ class ArduPilotAutopilot(Autopilot):
     mode_debounce_s = 0.0  # heartbeats carry the mode as it is
     signs_link = True
     signing = "MAVLink 2 signing on the link: the mission's signing key signs every message both ways"
-    arm_refusal = "FAILED"  # with a "PreArm: ..." STATUSTEXT
+    arm_refusal = "FAILED"  # with an "Arm: ..." STATUSTEXT (the periodic pre-arm checks say "PreArm: ...")
     driver_path = "swarmctl.mavlink.autopilots.ardupilot:ArduPilotVehicle"
+    # ArduCopter 4.7 (copter.parm) defaults in the comments; speeds in cm/s, distances in cm
+    limit_parameters = (
+        "WPNAV_SPEED",  # 1000: horizontal speed to a GUIDED target
+        "WPNAV_ACCEL",  # 250 cm/s^2
+        "WPNAV_SPEED_UP",  # 250: climb (take-off)
+        "WPNAV_SPEED_DN",  # 150: descent
+        "LAND_SPEED",  # 50: the landing's final descent, below LAND_ALT_LOW
+        "LAND_SPEED_HIGH",  # 0: the landing's descent above it (0: WPNAV_SPEED_DN)
+        "LAND_ALT_LOW",  # 1000
+        "RTL_ALT",  # 1500: the return's minimum altitude
+        "RTL_SPEED",  # 0: the return's speed (0: WPNAV_SPEED)
+        "RTL_LOIT_TIME",  # 5000 ms over home before descending
+    )
+    # SITL: it leaves the ground 4.5 s after NAV_TAKEOFF's ack, disarms 3.4-3.6 s after touching down, and
+    # holds within 0.5 m of a target 0.2 s after coming within 1 m
+    spool_s, disarm_s, settle_s = 5.0, 4.0, 0.5
 
     @property
     def modes(self) -> Mapping[str, int]:
@@ -68,6 +101,25 @@ class ArduPilotAutopilot(Autopilot):
 
     def custom_mode_from_command(self, param2: float, param3: float) -> int:
         return int(param2)
+
+    def flight_limits(self, values: Mapping[str, float]) -> FlightLimits:
+        speed = _speed(values, "WPNAV_SPEED", 10.0, 0.01)
+        descent = _speed(values, "WPNAV_SPEED_DN", 1.5, 0.01)
+        return FlightLimits(
+            speed=speed,
+            accel=_speed(values, "WPNAV_ACCEL", 2.5, 0.01),
+            climb=_speed(values, "WPNAV_SPEED_UP", 2.5, 0.01),
+            descent=_speed(values, "LAND_SPEED_HIGH", descent, 0.01),
+            land_speed=_speed(values, "LAND_SPEED", 0.5, 0.01),
+            land_alt_low=_value(values, "LAND_ALT_LOW", 10.0, 0.01),
+            rtl_alt=_value(values, "RTL_ALT", 15.0, 0.01),
+            rtl_speed=_speed(values, "RTL_SPEED", speed, 0.01),
+            rtl_loiter_s=_value(values, "RTL_LOIT_TIME", 5.0, 0.001),
+            spool_s=self.spool_s,
+            disarm_s=self.disarm_s,
+            settle_s=self.settle_s,
+            read=tuple(n for n in self.limit_parameters if n in values),
+        )
 
 
 ARDUPILOT = register(ArduPilotAutopilot())
@@ -125,6 +177,20 @@ class PX4Autopilot(Autopilot):
     )
     arm_refusal = "TEMPORARILY_REJECTED"  # MAVSDK reports it as COMMAND_DENIED
     driver_path = "swarmctl.mavlink.autopilots.px4:PX4Vehicle"
+    # read through MAVSDK's param plugin (it reads PX4 SITL's); PX4 main defaults in the comments (SI units)
+    limit_parameters = (
+        "MPC_XY_CRUISE",  # 5 m/s: horizontal speed of a reposition
+        "MPC_ACC_HOR",  # 3 m/s^2
+        "MPC_TKO_SPEED",  # 1.5 m/s: the take-off's climb (MPC_Z_VEL_MAX_UP, 3, is the limit in other modes)
+        "MPC_Z_V_AUTO_DN",  # 1.5 m/s: descent
+        "MPC_LAND_SPEED",  # 0.7 m/s: the landing's final descent, below MPC_LAND_ALT2
+        "MPC_LAND_ALT2",  # 5 m
+        "RTL_RETURN_ALT",  # 30 m
+        "RTL_LAND_DELAY",  # 0 s over home before landing (< 0: hover there, not land)
+    )
+    # SITL (SIH): it leaves 1 m 3-4.8 s after the take-off, disarms 7-8 s after touching down, and takes
+    # up to 5 s more to come from 1 m to 0.5 m of a target (NAV_ACC_RAD is 2 m)
+    spool_s, disarm_s, settle_s = 5.0, 8.0, 5.0
     own_connection = True  # MAVSDK opens the connection; one PX4 per connection
     # the modes a pilot selects with the sticks, as MAVSDK names them
     pilot_modes = frozenset({"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"})
@@ -149,6 +215,24 @@ class PX4Autopilot(Autopilot):
 
     def custom_mode_from_command(self, param2: float, param3: float) -> int:
         return px4_encode(int(param2), int(param3))
+
+    def flight_limits(self, values: Mapping[str, float]) -> FlightLimits:
+        speed = _speed(values, "MPC_XY_CRUISE", 5.0)
+        return FlightLimits(
+            speed=speed,
+            accel=_speed(values, "MPC_ACC_HOR", 3.0),
+            climb=_speed(values, "MPC_TKO_SPEED", 1.5),
+            descent=_speed(values, "MPC_Z_V_AUTO_DN", 1.5),
+            land_speed=_speed(values, "MPC_LAND_SPEED", 0.7),
+            land_alt_low=_value(values, "MPC_LAND_ALT2", 5.0),
+            rtl_alt=_value(values, "RTL_RETURN_ALT", 30.0),
+            rtl_speed=speed,
+            rtl_loiter_s=_value(values, "RTL_LAND_DELAY", 0.0),
+            spool_s=self.spool_s,
+            disarm_s=self.disarm_s,
+            settle_s=self.settle_s,
+            read=tuple(n for n in self.limit_parameters if n in values),
+        )
 
 
 _PX4_CUSTOM_MODES: Mapping[str, int] = MappingProxyType({n: px4_encode(*pair) for n, pair in PX4_MODES.items()})

@@ -9,6 +9,7 @@ Every PX4/MAVSDK quirk the controller depends on lives here:
   altitude: home AMSL + the wanted height above home.
 - MAVSDK's Python binding exposes no MAVLink signing (descriptions.PX4.signing): sign at a router
   (mavlink-router) if needed.
+- The speed parameters (descriptions.PX4.limit_parameters) are read with MAVSDK's param plugin.
 - A geofence goes up with MAVSDK's geofence plugin (the mission protocol, mission_type FENCE). PX4 has
   no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None).
 """
@@ -19,13 +20,21 @@ import asyncio
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Any
 
 from swarmctl.mavlink.autopilots.descriptions import PX4
 from swarmctl.mavlink.codec import Endpoint, parse_connection
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout, WrongAutopilot
+from swarmctl.mavlink.errors import (
+    CommandRejected,
+    CommandTimeout,
+    MavlinkError,
+    NotReady,
+    WaitTimeout,
+    WrongAutopilot,
+)
 from swarmctl.mavlink.network import cancel_tasks
-from swarmctl.mavlink.vehicle import Home, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
 _mavsdk_log_installed = False
@@ -84,6 +93,8 @@ class PX4Vehicle(Vehicle):
         self.action: Any = None
         self.telemetry: Any = None
         self.geofence: Any = None
+        self.params: Any = None
+        self.odometer = Odometer()
         self._tasks: list[asyncio.Task] = []
         self._position: Position | None = None
         self._home: Home | None = None
@@ -162,6 +173,7 @@ class PX4Vehicle(Vehicle):
     def _on_position(self, p: Any) -> None:
         if math.isfinite(p.latitude_deg) and (p.latitude_deg or p.longitude_deg):
             self._position = Position(p.latitude_deg, p.longitude_deg, p.relative_altitude_m, p.absolute_altitude_m)
+            self.odometer.add(self._position)
 
     def _on_home(self, h: Any) -> None:
         if math.isfinite(h.latitude_deg) and (h.latitude_deg or h.longitude_deg):
@@ -192,9 +204,37 @@ class PX4Vehicle(Vehicle):
                 raise CommandTimeout(what, self.name, 0, 0.0) from None
             raise CommandRejected(what, self.name, rname, str(exc)) from None
 
-    async def wait_ready(self, timeout: float = 60.0) -> None:
-        # Position and home known; PX4's health flags are not waited for (arming is retried).
-        await self._poll(lambda: self._position is not None and self._home is not None, timeout, "position and home")
+    async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
+        """Position and home known; PX4's health flags are not waited for (arming is retried)."""
+
+        def missing() -> list[str]:
+            return [what for what, known in (("a position", self._position), ("home", self._home)) if known is None]
+
+        waiting = ""
+        deadline = time.monotonic() + timeout
+        while lacking := missing():
+            if (text := "waiting for " + ", ".join(lacking)) != waiting:
+                waiting = text
+                if report is not None:
+                    report(text)
+            if time.monotonic() > deadline:
+                raise NotReady(self.name, timeout, waiting)
+            await asyncio.sleep(0.05)
+
+    async def read_parameter(self, name: str) -> float:
+        """A parameter through MAVSDK's param plugin (float, else int)."""
+        from mavsdk.asyncio.plugins.param import ParamAsync
+
+        if self._system is None:
+            raise MavlinkError(f"{self.name}: not connected, cannot read {name}")
+        if self.params is None:
+            self.params = ParamAsync(self._system)
+        try:
+            return float(await self._call(f"reading parameter {name}", self.params.get_param_float, name))
+        except CommandRejected as exc:
+            if "WRONG_TYPE" not in (exc.result + exc.reason):
+                raise
+        return float(await self._call(f"reading parameter {name}", self.params.get_param_int, name))
 
     async def close(self) -> None:
         await cancel_tasks(self._tasks)

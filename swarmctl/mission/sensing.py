@@ -1,0 +1,87 @@
+"""Sensing in the field: what a vehicle covers from the cell it reached, and what a detector adds.
+
+Every step, on arrival, the agent explores its footprint: the disc of radius fov cells round the cell
+the vehicle reached (cell centres, exactly the simulator's disc, swarmctl.world.scenario.fov_offsets;
+fov is the plan's, `MissionPlan.fov`), whether or not a detector is attached. The obstacles there are
+the grid's blocked cells (the controller knows the map) and the phi reported is 0: the value of
+explored cells comes from the targets known (swarmctl.knowledge.model.beliefs_from_knowledge). Without
+a detector the mission is a coverage search.
+
+A detector only adds what it saw in a footprint: targets, and optionally phi and obstacles
+(swarmctl.mission.detector: SensorReport). Reports are matched to where the vehicle has been, not taken
+on trust:
+- a report counts for the cell it names only if the vehicle reached that cell, and only within the
+  footprint round it; the rest (a cell never reached, cells and targets outside the footprint) is
+  dropped and counted (`Sensed.dropped`);
+- a late report (after `[timing] sense_timeout`, or from a vehicle the mission gives no detector)
+  counts when it arrives: its targets become known, and are shared, at the next round; its cells are
+  explored already, and its phi and obstacles are merged into the agent's knowledge (not re-sent in
+  deltas: the others compute the value near a target from the target itself).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from swarmctl.knowledge.model import disc_cells
+
+
+def _none() -> np.ndarray:
+    return np.zeros((0, 2), dtype=np.int64)
+
+
+@dataclass
+class Sensed:
+    """What one agent senses in one round: cells with their phi and obstacle flag, target cells, and
+    how many report entries (cells and targets) were dropped."""
+
+    cells: np.ndarray = field(default_factory=_none)  # (N, 2), may repeat a cell (merges take max / or)
+    phi: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
+    obstacle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    targets: np.ndarray = field(default_factory=_none)  # (K, 2) distinct
+    dropped: int = 0
+
+
+def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
+    """(N, 2) cells of the footprint round `cell` that lie on the grid."""
+    return disc_cells(cell, grid.width, grid.height, fov)
+
+
+def sense(
+    grid: Any, fov: float, reached: tuple[int, int] | None, reports: Iterable[Any], visited: set[tuple[int, int]]
+) -> Sensed:
+    """The footprint round `reached` (None: the vehicle did not arrive anywhere new this round) with the
+    grid's obstacles and phi 0, plus what `reports` (SensorReports) say within the footprints of cells
+    in `visited` (the cells the vehicle reached, `reached` included)."""
+    h = grid.height
+    cells, phi, obstacle, targets = [], [], [], []
+    dropped = 0
+    if reached is not None:
+        c = footprint(reached, grid, fov)
+        cells.append(c)
+        phi.append(np.zeros(len(c), dtype=np.float32))
+        obstacle.append(np.asarray(grid.blocked, dtype=bool)[c[:, 0], c[:, 1]])
+    for r in reports:
+        rc = np.asarray(r.cells, dtype=np.int64).reshape(-1, 2)
+        rt = np.asarray(r.targets, dtype=np.int64).reshape(-1, 2)
+        if tuple(r.cell) not in visited:
+            dropped += len(rc) + len(rt)
+            continue
+        disc = footprint(tuple(r.cell), grid, fov)
+        flat = disc[:, 0] * h + disc[:, 1]
+        keep = np.isin(rc[:, 0] * h + rc[:, 1], flat)
+        keep_t = np.isin(rt[:, 0] * h + rt[:, 1], flat)
+        dropped += int((~keep).sum() + (~keep_t).sum())
+        cells.append(rc[keep])
+        phi.append(np.asarray(r.phi, dtype=np.float32).reshape(-1)[keep])
+        blocked = np.asarray(grid.blocked, dtype=bool)[rc[keep, 0], rc[keep, 1]]
+        obstacle.append(np.asarray(r.obstacle, dtype=bool).reshape(-1)[keep] | blocked)
+        targets.append(rt[keep_t])
+    if not cells:
+        return Sensed(dropped=dropped)
+    found = np.unique(np.concatenate(targets), axis=0) if targets else _none()
+    return Sensed(np.concatenate(cells), np.concatenate(phi), np.concatenate(obstacle), found.reshape(-1, 2), dropped)

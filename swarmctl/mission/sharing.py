@@ -1,0 +1,125 @@
+"""How the agents of one process share knowledge, and where their TUNNEL frames go.
+
+- Ground mode (the plan flies every vehicle: `swarmctl fly`, `swarmctl demo`): the agents share in
+  memory, on one `swarmctl.knowledge.bus.KnowledgeBus` (ideal; the demo and tests may give it the
+  simulator's channel model, `MissionPlan.bus_channel`). No hub, no address: `[knowledge] channel` is
+  not used. Each agent writes each of its frames once, on its own vehicle's MAVLink link (ArduPilot
+  through pymavlink), so the recording holds them and an onboard agent or ground station behind the
+  vehicle's routing sees them; never on the other vehicles' links. A PX4 vehicle flown through MAVSDK
+  has no such link here: its agent shares through the bus only, and the recording has its knowledge in
+  the snapshots (knowledge.jsonl).
+- Onboard mode (`swarmctl agent`: the plan flies some vehicles; the others' agents run elsewhere):
+  each agent has a UDP socket that sends to `[knowledge] channel` (a MAVLink router or telemetry mesh
+  that forwards to every agent) and reads what it forwards; every datagram in and out is recorded.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+from swarmctl.knowledge.bus import KnowledgeBus
+from swarmctl.knowledge.exchange import KnowledgeExchange
+from swarmctl.knowledge.model import Knowledge
+
+if TYPE_CHECKING:
+    from swarmctl.mission.agent import Agent
+    from swarmctl.mission.plan import MissionPlan
+    from swarmctl.mission.recorder import Recorder
+    from swarmctl.mission.spec import VehicleSpec
+
+
+class TapSocket:
+    """Wraps a KnowledgeExchange's socket so the recorder sees every datagram in and out."""
+
+    def __init__(self, sock: Any, recorder: Recorder):
+        self._sock, self._rec = sock, recorder
+
+    def sendto(self, data: bytes, addr: Any) -> int:
+        self._rec.datagram(data)
+        return self._sock.sendto(data, addr)
+
+    def recvfrom(self, size: int) -> tuple[bytes, Any]:
+        data, addr = self._sock.recvfrom(size)
+        self._rec.datagram(data)
+        return data, addr
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sock, name)
+
+
+def make_bus(plan: MissionPlan) -> KnowledgeBus | None:
+    """The process's bus in ground mode (None in onboard mode)."""
+    return None if plan.onboard else KnowledgeBus(plan.bus_channel, seed=plan.seed)
+
+
+def open_exchange(
+    plan: MissionPlan, index: int, spec: VehicleSpec, recorder: Recorder, bus: KnowledgeBus | None
+) -> KnowledgeExchange:
+    """Vehicle `index`'s exchange: on the bus (ground mode; give it its outlet with `link_outlet`) or on
+    a UDP socket to the knowledge channel (onboard mode), recorded."""
+    kn = Knowledge(plan.grid.width, plan.grid.height, vehicle_id=index)
+    common = dict(system_id=spec.sysid, digest_every=plan.spec.knowledge.digest_every, push=plan.spec.knowledge.push)
+    if bus is not None:
+        return KnowledgeExchange(kn, plan.spec.mission.id, bus=bus, **common)
+    channel = plan.spec.knowledge.channel
+    if channel is None:  # make_plan refuses such a plan; a plan changed by hand must not fly mute
+        raise ValueError("an onboard plan needs a [knowledge] channel")
+    exchange = KnowledgeExchange(kn, plan.spec.mission.id, (channel.host, channel.port), **common)
+    exchange.sock = TapSocket(exchange.sock, recorder)
+    return exchange
+
+
+def link_outlet(agent: Agent):
+    """A frame writer onto the agent's own vehicle link (looked up at each frame: the vehicle is
+    connected after the agent is made); False when it has none (not connected yet, PX4 via MAVSDK)."""
+
+    def write(frame: bytes) -> bool:
+        writer = getattr(getattr(getattr(agent.vehicle, "link", None), "mav", None), "file", None)
+        if writer is None:
+            return False
+        try:
+            writer.write(frame)  # the link's transport, through the recorder's tap (tlog)
+        except (OSError, ValueError, AttributeError):  # a link closing: the bus has the message all the same
+            return False
+        return True
+
+    return write
+
+
+def describe(plan: MissionPlan) -> list[str]:
+    """How knowledge travels and what each vehicle senses, for the plan's description."""
+    spec = plan.spec
+    if plan.onboard:
+        lines = [f"knowledge: over the channel {spec.knowledge.channel}, shared with the agents of the other vehicles"]
+    else:
+        line = (
+            "knowledge: shared in this process (no hub to run); each agent's TUNNEL messages also go out once "
+            "on its own vehicle's MAVLink link (PX4 vehicles through MAVSDK: in the recording's snapshots only)"
+        )
+        if spec.knowledge.channel is not None:
+            line += f"; [knowledge] channel {spec.knowledge.channel} is for swarmctl agent, fly does not use it"
+        lines = [line]
+    kept = [i for i in range(len(spec.vehicles)) if plan.only is None or i in plan.only]
+    with_detector = [i for i in kept if i in plan.detectors]
+    where = "the footprint round each cell reached is explored from the vehicle's position"
+    if not with_detector:
+        lines.append(f"sensing: no detector, so this is a coverage search ({where}); no target can be found")
+    elif len(with_detector) < len(kept):
+        lines.append(
+            f"sensing: {where}; {len(with_detector)} of {len(kept)} vehicles have a detector for the targets "
+            "(the others search by coverage only)"
+        )
+    else:
+        lines.append(f"sensing: {where}; each vehicle's detector reports the targets it sees there")
+    return lines
+
+
+def detector_text(detector: Any) -> str:
+    """A vehicle's detector as the plan's description says it."""
+    if detector is None:
+        return "no detector"
+    return (
+        "detector on its MAVLink link"
+        if isinstance(detector, str)
+        else f"detector at udp:{detector.host}:{detector.port}"
+    )
