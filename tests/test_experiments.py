@@ -101,6 +101,8 @@ def test_the_figures_data_match_the_runs(fast):
         assert all(r["ms_per_vehicle_batch1"] > 0 for r in s["table"])
         assert [t["stages"] for t in s["training"]] == [2, 3, 6] and all(t["wall_min"] > 0 for t in s["training"])
     elif name == "mavlink":
+        flown = [r for r in record["runs"].values() if "knowledge_delivered" in r]
+        assert flown and all(r["knowledge_delivered"] > 0 for r in flown)  # the agents shared on the bus
         for row in s["table"]:
             for side in ("simulator", "mavlink") if "mavlink_steps" in row else ("simulator",):
                 assert row[f"{side}_steps"] <= p["steps"]

@@ -1,8 +1,9 @@
 """One simulator episode flown through the MAVLink path: mock autopilots over loopback UDP at the
 episode's start cells (swarmctl.sim.swarm.SimSwarm), its targets hidden in their detectors, its
-obstacles as the grid's blocked cells, knowledge shared through the loopback radio with the channel
-model, and the real controller. The search is stopped after `steps` decision rounds, as the
-simulator's episode stops at its step limit.
+obstacles as the grid's blocked cells, and the real controller in ground mode: its agents share
+knowledge as TUNNEL frames on its knowledge bus with the channel model (swarmctl.mission.sharing).
+The search is stopped after `steps` decision rounds, as the simulator's episode stops at its step
+limit.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ def fly_episode(params: dict, folder: Path) -> dict:
         try:
             outcome = asyncio.run(main())
             summary = controller.summary()
+            bus = controller.bus.counters()
         finally:
             rec.close()
         wall = time.monotonic() - t0
@@ -74,8 +76,8 @@ def fly_episode(params: dict, folder: Path) -> dict:
         "targets_found": len(summary["targets_found"]),
         "knowledge_sent": summary["messages"]["knowledge_sent"],
         "knowledge_received": summary["messages"]["knowledge_received"],
-        "radio_forwarded": swarm.radio.forwarded,
-        "radio_lost": swarm.radio.dropped,
+        "knowledge_delivered": bus["delivered"],  # frames, sender -> receiver links
+        "knowledge_lost": bus["lost"],
         "refused_moves": int(np.sum([v["refused_moves"] for v in summary["vehicles"]])),
         "mission_wall_s": round(wall, 1),
     }

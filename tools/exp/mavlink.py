@@ -96,7 +96,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
                     mavlink_outcome=None if flown is None else flown["outcome"],
                     knowledge_lost=None
                     if flown is None
-                    else f"{flown['radio_lost']} of {flown['radio_forwarded'] + flown['radio_lost']}",
+                    else f"{flown['knowledge_lost']} of {flown['knowledge_delivered'] + flown['knowledge_lost']}",
                 )
             )
     for label, r in sim.items():
@@ -123,11 +123,11 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
 
 
 def figure(s: dict, path) -> None:
-    fig, ax = plt.subplots(figsize=(7, 4.2))
+    fig, ax = plt.subplots(figsize=(8, 4.2))
     done = [r for r in s["table"] if r.get("mavlink_steps") is not None and r["simulator_steps"] is not None]
     x = np.arange(len(done))
     ax.bar(x - 0.2, [r["simulator_steps"] for r in done], 0.4, label="simulator (guard, same episode)")
-    ax.bar(x + 0.2, [r["mavlink_steps"] for r in done], 0.4, label="MAVLink: mock autopilots, controller, radio")
+    ax.bar(x + 0.2, [r["mavlink_steps"] for r in done], 0.4, label="MAVLink: mocks, controller, channel model")
     for i, r in enumerate(done):
         for dx, ok in ((-0.2, r["simulator_success"]), (0.2, r["mavlink_success"])):
             ax.text(i + dx, 1, "ok" if ok else "x", ha="center", fontsize=7, color="w")
