@@ -16,6 +16,7 @@ from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.registry import make_policy
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
+from swarmctl.world.paths import UNREACHABLE, grid_distances
 
 DEFAULT_CHUNK = 250
 
@@ -23,6 +24,42 @@ DEFAULT_CHUNK = 250
 def _chunks(episodes: int, chunk: int):
     for start in range(0, episodes, chunk):
         yield start, min(chunk, episodes - start)
+
+
+def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) -> list[dict]:
+    """One record per episode of `env` as it ended: `episode` (its index), `steps`, `success`,
+    `on_target` (per vehicle, the index of the target whose cell it ends on, or None), `searching`
+    (the vehicles without a target of their own: off any target, or sharing one with a
+    lower-numbered vehicle), and `straggler_distance`: when exactly one vehicle is searching (the
+    paper's straggler), its BFS steps over the free cells to the nearest target no vehicle is on
+    (None otherwise, or when none is reachable); `collisions`, the steps with a collision."""
+    at = (env.pos[:, :, None, :] == env.targets[:, None, :, :]).all(-1)  # (B, U, K)
+    on = np.where(at.any(-1), at.argmax(-1), -1)
+    searching = ~env.hovering_now()
+    free = ~at.any(1)  # (B, K) targets no vehicle is on
+    lone = np.flatnonzero((searching.sum(1) == 1) & free.any(1))
+    distance = np.full(env.batch, -1, dtype=np.int64)
+    if len(lone):
+        src = np.zeros((len(lone), env.width, env.height), dtype=bool)
+        for row, b in enumerate(lone):
+            cells = env.targets[b][free[b]]
+            src[row, cells[:, 0], cells[:, 1]] = True
+        dist = grid_distances(~env.obstacles[lone], src)
+        who = searching[lone].argmax(1)
+        d = dist[np.arange(len(lone)), env.pos[lone, who, 0], env.pos[lone, who, 1]]
+        distance[lone] = np.where(d >= UNREACHABLE, -1, d)
+    return [
+        {
+            "episode": int(env.episodes[b]),
+            "steps": int(durations[b]),
+            "success": bool(success[b]),
+            "on_target": [None if k < 0 else int(k) for k in on[b]],
+            "searching": [int(u) for u in np.flatnonzero(searching[b])],
+            "straggler_distance": None if distance[b] < 0 else int(distance[b]),
+            "collisions": int(env.collisions[b]),
+        }
+        for b in range(env.batch)
+    ]
 
 
 def run_policy(
@@ -38,7 +75,7 @@ def run_policy(
     """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given); returns
     the per-policy result record."""
     policy = make_policy(spec)
-    durations, successes, oracle = [], [], []
+    durations, successes, oracle, records = [], [], [], []
     collisions = 0
     act_seconds, decisions = 0.0, 0
     bar = tqdm(total=episodes, desc=f"{spec:>12}", unit="ep", disable=not progress, leave=False)
@@ -50,6 +87,10 @@ def run_policy(
         if isinstance(policy, OracleBound):
             durations.append(np.where(bound <= steps, bound, steps).astype(np.int64))
             successes.append(bound <= steps)
+            records += [
+                {"episode": int(e), "steps": int(d), "success": bool(ok)}
+                for e, d, ok in zip(env.episodes, durations[-1], successes[-1])
+            ]
             bar.update(n)
             continue
         policy.reset(env.beliefs(), seed)
@@ -65,6 +106,7 @@ def run_policy(
             env.step(actions)
         durations.append(np.where(env.done, env.duration, steps))
         successes.append(env.done.copy())
+        records += episode_records(env, durations[-1], successes[-1])
         collisions += int(env.collisions.sum())
         bar.update(n)
     bar.close()
@@ -84,6 +126,7 @@ def run_policy(
         "duration_ratio_to_oracle": float(d.mean() / mean_oracle) if mean_oracle > 0 else None,
         "collisions_per_episode": collisions / episodes,
         "decision_ms_per_vehicle": (1000.0 * act_seconds / decisions) if decisions else None,
+        "per_episode": records,
     }
 
 
