@@ -71,17 +71,11 @@ def open_exchange(
 
 def link_outlet(agent: Agent):
     """A frame writer onto the agent's own vehicle link (looked up at each frame: the vehicle is
-    connected after the agent is made); False when it has none (not connected yet, PX4 via MAVSDK)."""
+    connected after the agent is made): the driver's `write_frame`, False while it has no link."""
 
     def write(frame: bytes) -> bool:
-        writer = getattr(getattr(getattr(agent.vehicle, "link", None), "mav", None), "file", None)
-        if writer is None:
-            return False
-        try:
-            writer.write(frame)  # the link's transport, through the recorder's tap (tlog)
-        except (OSError, ValueError, AttributeError):  # a link closing: the bus has the message all the same
-            return False
-        return True
+        send = getattr(agent.vehicle, "write_frame", None)
+        return bool(send(frame)) if send is not None else False
 
     return write
 
