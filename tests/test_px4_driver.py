@@ -18,7 +18,8 @@ from swarmctl.knowledge.codec import KnowledgeCodec
 from swarmctl.knowledge.model import Delta
 from swarmctl.mavlink.autopilots.descriptions import MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT, PX4, px4_encode
 from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
-from swarmctl.mavlink.codec import distance_m, offset_m
+from swarmctl.mavlink.codec import distance_m, offset_m, parse_connection
+from swarmctl.mavlink.connect import with_port_hints
 from swarmctl.mavlink.errors import CommandRejected, NotReady, WaitTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
 from swarmctl.sim.swarm import free_udp_port
@@ -171,6 +172,11 @@ def test_nothing_on_a_port_a_px4_instance_above_9_would_use_names_the_port_it_re
     )
     assert PX4.silent_port_hint(14545, 6) == "" and PX4.silent_port_hint(None, 3) == ""
     assert "instance above 9 (here 10" in PX4.silent_port_hint(None, 11)  # a serial link: the system id says
+    # the connector's heartbeat wait (a mission without an autopilot key) says the same
+    timeout = WaitTimeout("a HEARTBEAT", "vehicle 13", 20.0)
+    said = str(with_port_hints(timeout, parse_connection("udpin:0.0.0.0:14552"), 13))
+    assert said == f"vehicle 13: timed out after 20 s waiting for a HEARTBEAT ({hint})"
+    assert with_port_hints(timeout, parse_connection("udpin:0.0.0.0:14545"), 6) is timeout
 
 
 def test_a_px4_that_never_gets_a_position_is_not_ready_and_the_error_names_what_is_missing():
