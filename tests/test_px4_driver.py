@@ -1,7 +1,7 @@
 """The PX4 driver through MAVSDK against the mock PX4, and the mock PX4 against what PX4 SITL showed.
 
 The reposition goes as COMMAND_INT through MAVSDK's MavlinkDirect in the frame the vehicle takes (PX4
-up to 1.16 and the SITL build: GLOBAL_INT and GLOBAL; PX4 main since February 2026: GLOBAL only),
+up to 1.16 and the SITL build: GLOBAL_INT and GLOBAL; stock PX4 main refuses one of them with 9),
 readiness waits name what is missing, knowledge frames go out on the vehicle's own link, and the mock
 answers as the real one did (docs/mavlink.md, "What PX4 SITL showed").
 """
@@ -78,8 +78,8 @@ def test_a_px4_that_takes_global_int_is_repositioned_in_it_with_one_command():
 
 @pytest.mark.slow
 def test_a_px4_that_refuses_global_int_is_repositioned_in_global_and_the_choice_is_kept():
-    """PX4 main since February 2026: GLOBAL_INT refused with UNSUPPORTED_MAV_FRAME (9); the first
-    reposition is sent again in GLOBAL, the second goes in GLOBAL at once."""
+    """GLOBAL_INT refused with UNSUPPORTED_MAV_FRAME (9), as ../shared/px4/README says stock PX4 main
+    does: the first reposition is sent again in GLOBAL, the second goes in GLOBAL at once."""
     results, frame, errors = fly_two_repositions(reposition_frames={MAV_FRAME_GLOBAL})
     assert results == [9, MAV.MAV_RESULT_ACCEPTED, MAV.MAV_RESULT_ACCEPTED]
     assert frame == MAV_FRAME_GLOBAL and max(errors) < 0.5
@@ -210,6 +210,13 @@ async def mock_on_link(**mock_kw):
     return link, mock_vehicles(spec)
 
 
+async def take_off(link, mock, param7: float) -> None:
+    """Once the mock is ready: arm, and MAV_CMD_NAV_TAKEOFF with this param7 (AMSL; NaN: MIS_TAKEOFF_ALT)."""
+    await link.wait_until(lambda: mock.ready, 10, "ready", "px4")
+    await link.command(6, MAV.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
+    await link.command(6, MAV.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, math.nan, math.nan, param7))
+
+
 def test_the_mock_px4_heartbeat_and_streams_are_those_of_px4_sitl():
     async def scenario():
         link, ctx = await mock_on_link(speedup=1.0, ready_after=5.3)
@@ -245,9 +252,7 @@ def test_the_mock_px4_takes_off_to_mis_takeoff_alt_and_takes_repositions_as_px4_
         link, ctx = await mock_on_link()
         try:
             with ctx as (m,):
-                await link.wait_until(lambda: m.ready, 10, "ready", "px4")
-                await link.command(6, MAV.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
-                await link.command(6, MAV.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, math.nan, math.nan, math.nan))
+                await take_off(link, m, math.nan)
                 up = await asyncio.get_running_loop().run_in_executor(
                     None, m.wait_for, lambda mm: mm.mode_name == "HOLD", 10
                 )
@@ -288,9 +293,7 @@ def test_the_mock_px4_on_a_lost_ground_station_link_follows_nav_dll_act(nav_dll_
         try:
             with ctx as (m,):
                 m.params.update(NAV_DLL_ACT=nav_dll_act, COM_DL_LOSS_T=1.0, COM_FAIL_ACT_T=1.0)
-                await link.wait_until(lambda: m.ready, 10, "ready", "px4")
-                await link.command(6, MAV.MAV_CMD_COMPONENT_ARM_DISARM, (1,))
-                await link.command(6, MAV.MAV_CMD_NAV_TAKEOFF, (0, 0, 0, math.nan, math.nan, math.nan, HOME[2] + 30))
+                await take_off(link, m, HOME[2] + 30)
                 await link.wait_until(lambda: m.rel_alt > 10, 10, "climbing", "px4")
                 await link.wait_until(lambda: m.last_gcs_heartbeat is not None, 5, "the link's heartbeat", "px4")
                 link._tasks[0].cancel()  # the controller's heartbeats stop (_heartbeat_loop); the link stays open
@@ -298,7 +301,7 @@ def test_the_mock_px4_on_a_lost_ground_station_link_follows_nav_dll_act(nav_dll_
                 for _ in range(30):  # 3 s
                     await asyncio.sleep(0.1)
                     critical |= link.peer(6).heartbeat.system_status == MAV.MAV_STATE_CRITICAL
-                    if not modes or modes[-1] != m.mode_name:
+                    if m.armed and (not modes or modes[-1] != m.mode_name):  # landed: HOLD again
                         modes.append(m.mode_name)
                 return modes, critical, m.state().gcs_failsafe
         finally:
@@ -308,3 +311,34 @@ def test_the_mock_px4_on_a_lost_ground_station_link_follows_nav_dll_act(nav_dll_
     took_off = modes[0] in ("TAKEOFF", "HOLD")
     assert took_off and [mode for mode in modes if mode != "TAKEOFF"] == after
     assert critical is (nav_dll_act == 2.0) and failsafe is (nav_dll_act == 2.0)
+
+
+def test_the_mock_px4_returns_at_rtl_return_alt_and_holds_once_disarmed_as_px4_sitl():
+    """PX4 SITL, 15 m out at 6 m: climbed to RTL_RETURN_ALT (30 m), flew home, landed, "Disarmed by
+    landing", then AUTO.LOITER (HOLD) disarmed."""
+
+    async def scenario():
+        link, ctx = await mock_on_link()
+        try:
+            with ctx as (m,):
+                await take_off(link, m, HOME[2] + 6)
+                await link.wait_until(lambda: m.mode_name == "HOLD" and m.rel_alt > 5.9, 10, "the take-off", "px4")
+                lat, lon = offset_m(HOME[0], HOME[1], 0.0, 15.0)
+                await link.command(6, REPOSITION, (-1, 1, 0, math.nan, lat, lon, HOME[2] + 6))  # COMMAND_LONG: degrees
+                await link.wait_until(lambda: distance_m(m.lat, m.lon, lat, lon) < 1, 10, "the reposition", "px4")
+                await link.command(6, MAV.MAV_CMD_NAV_RETURN_TO_LAUNCH, ())
+                top, modes = 0.0, []
+                while m.armed or not modes:
+                    top = max(top, m.rel_alt)
+                    if not modes or modes[-1] != m.mode_name:
+                        modes.append(m.mode_name)
+                    await asyncio.sleep(0.02)
+                modes.append(m.mode_name)
+                texts = link.peer(6).texts_since(0)
+                return top, modes, distance_m(m.lat, m.lon, HOME[0], HOME[1]), texts
+        finally:
+            await link.close()
+
+    top, modes, off_home, texts = run(scenario(), timeout=60)
+    assert top == pytest.approx(30.0, abs=0.1) and off_home < 0.1
+    assert modes == ["RTL", "HOLD"] and "Disarmed by landing" in texts

@@ -123,7 +123,7 @@ class MockAutopilot:
         signing_key: bytes | None = None,
         ready_after: float = 2.0,
         gcs_failsafe_timeout: float | None = 5.0,
-        rtl_alt: float = 15.0,
+        rtl_alt: float | None = None,
         battery_drain: float = 0.08,
         compid: int = 1,
         seed: int | None = None,
@@ -141,7 +141,7 @@ class MockAutopilot:
         self.ready_after = ready_after  # simulated seconds after boot before it can arm (boot.py)
         self.ekf_after: float | None = None  # the slow-EKF fault (slow_ekf); None: ready_after
         self.gcs_failsafe_timeout = gcs_failsafe_timeout  # wall seconds; None disables the failsafe
-        self.rtl_alt = rtl_alt
+        self.rtl_alt = self.personality.rtl_alt if rtl_alt is None else rtl_alt  # m above home
         self.battery_drain = battery_drain  # % per simulated second while flying
         self.tick = tick
         self.rng = random.Random(seed)
@@ -174,8 +174,8 @@ class MockAutopilot:
         for name in ("MAV_SYSID", "MAV_SYS_ID"):  # ArduPilot 4.7, PX4
             if name in self.params:
                 self.params[name] = float(sysid)
-        # the frames a COMMAND_INT reposition is taken in (None: the personality's; PX4 main since
-        # February 2026: {MAV_FRAME_GLOBAL} only)
+        # the frames a COMMAND_INT reposition is taken in (None: the personality's; e.g. {MAV_FRAME_GLOBAL}
+        # for a PX4 that refuses GLOBAL_INT)
         self.reposition_frames = (
             self.personality.reposition_frames if reposition_frames is None else frozenset(reposition_frames)
         )
@@ -657,6 +657,8 @@ class MockAutopilot:
             self.target = None
             self.vel = (0.0, 0.0, 0.0)
             self.statustext(self.personality.landed_text)
+            if self.personality.landed_mode is not None:
+                self.custom_mode = self.personality.custom_mode(self.personality.landed_mode)
 
     def _not_armable(self) -> str | None:
         """Why the vehicle could not arm now in its current mode (None: it could), as its pre-arm

@@ -79,6 +79,8 @@ class Personality(abc.ABC):
     # None: any frame (COMMAND_LONG has none and is always taken)
     reposition_frames: ClassVar[frozenset[int] | None] = None
     takeoff_texts: ClassVar[tuple[str, ...]] = ()  # STATUSTEXTs when a take-off starts ({alt:.1f} m above home)
+    landed_mode: ClassVar[str | None] = None  # the mode after a landing or return has disarmed (None: it stays)
+    rtl_alt: ClassVar[float]  # the return's altitude above home by default (RTL_ALT, RTL_RETURN_ALT)
 
     @property
     def name(self) -> str:
@@ -129,6 +131,7 @@ class ArduPilotPersonality(Personality):
 
     autopilot = ARDUPILOT
     boot_mode = "STABILIZE"
+    rtl_alt = 15.0  # RTL_ALT 1500 cm
     default_streams: Mapping[int, float] = {}  # a fresh ArduPilot sends only heartbeats
     params: Mapping[str, float] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return
         "FENCE_ENABLE": 0.0,
@@ -274,6 +277,7 @@ class PX4Personality(Personality):
         "MPC_TKO_SPEED": ("climb_rate", 1.0),
         "MPC_Z_V_AUTO_DN": ("descent_rate", 1.0),
         "MPC_LAND_SPEED": ("descent_rate", 1.0),
+        "RTL_RETURN_ALT": ("rtl_alt", 1.0),
     }
     # PX4 SITL, ready 5.3 s after launch: HOME_POSITION (and so a global position) 2.4 s, standby 4.3 s;
     # telemetry streams from the first heartbeat
@@ -284,6 +288,8 @@ class PX4Personality(Personality):
     outside_fence_reason = "Geofence violation"
     disarm_flying_text = "Disarming denied: not landed"
     landed_text = "Disarmed by landing"
+    landed_mode = "HOLD"  # SITL: AUTO.LOITER once disarmed, after a LAND and after an RTL
+    rtl_alt = 30.0  # RTL_RETURN_ALT; SITL climbed from 6 m to 30 m before returning
     failsafe_text = "Failsafe activated"
     takeoff_texts = ("Takeoff detected", "Using default takeoff altitude: {alt:.1f} m")
     target_modes = frozenset({"TAKEOFF", "HOLD", "OFFBOARD"})
@@ -292,8 +298,8 @@ class PX4Personality(Personality):
     request_refused = MAV.MAV_RESULT_UNSUPPORTED
     reboot_refused = MAV.MAV_RESULT_DENIED
     reposition_refused = MAV.MAV_RESULT_DENIED
-    # as the SITL build: GLOBAL and GLOBAL_INT (PX4 main since February 2026: GLOBAL only; the mock's
-    # `reposition_frames` plays that); GLOBAL_RELATIVE_ALT (3) is refused with UNSUPPORTED_MAV_FRAME
+    # as the SITL build: GLOBAL and GLOBAL_INT (a PX4 taking only one of them: the mock's
+    # `reposition_frames`); GLOBAL_RELATIVE_ALT (3) is refused with UNSUPPORTED_MAV_FRAME
     reposition_frames = frozenset(PX4.reposition_frames)
     fence_enable_command = False  # an uploaded fence is enforced while GF_ACTION is not 0
     fence_inside_all = False

@@ -170,8 +170,9 @@ class PX4Autopilot(Autopilot):
     label = "PX4"
     mav_autopilot = 12  # MAV_AUTOPILOT_PX4
     command_mode = "HOLD"
-    # MAVSDK's flight-mode subscription was seen to report the pre-take-off POSCTL for a moment after
-    # the take-off: a pilot's mode counts once it has been reported for 1.5 s.
+    # MAVSDK's flight-mode subscription was seen to report the pre-take-off POSCTL for a moment after the
+    # take-off (of the mock, which then booted in POSCTL; PX4 SITL boots in AUTO.LOITER and reported no
+    # stick mode in its flights): a pilot's mode counts once it has been reported for 1.5 s.
     mode_debounce_s = 1.5
     signs_link = False
     signing = (
@@ -197,8 +198,9 @@ class PX4Autopilot(Autopilot):
     own_connection = True  # MAVSDK opens the connection; one PX4 per connection
     # MAV_CMD_DO_REPOSITION goes as COMMAND_INT with an AMSL altitude in one of these frames, tried in this
     # order until one is not refused with REPOSITION_FRAME_REFUSED; the driver keeps the first accepted one
-    # for the vehicle. PX4 releases up to 1.16 (and the SITL build in ../shared/px4) take both;
-    # PX4 main since February 2026 refuses GLOBAL_INT (what MAVSDK 4.1's goto_location sends).
+    # for the vehicle. PX4 releases up to 1.16 and the SITL build in ../shared/px4 take both; stock PX4 main
+    # since February 2026 refuses one of them with 9 (../shared/px4/README says GLOBAL_INT; MAVSDK 4.1's
+    # goto_location, which it says fails there, sends GLOBAL). GLOBAL_RELATIVE_ALT is refused (SITL: 9).
     reposition_frames = (MAV_FRAME_GLOBAL_INT, MAV_FRAME_GLOBAL)
     # the API (offboard) link of SITL instance N sends to UDP 14540 + N for N 0..9, and to 14549 above 9
     # (px4-rc.mavlink: "use the same ports for more than 10 instances")

@@ -1,17 +1,30 @@
 """PX4 through MAVSDK (the `mavsdk` 4.x package: a native libcmavsdk binding, no mavsdk_server process).
 
-Every PX4/MAVSDK quirk the controller depends on lives here:
+Every PX4/MAVSDK quirk the controller depends on lives here (checked against PX4 SITL, ../shared/px4):
 - MAVSDK's asyncio wrappers: `mavsdk.asyncio.Mavsdk`, `ActionAsync`, `TelemetryAsync` (`subscribe_*`
-  async generators fed from MAVSDK's callback threads). Blocking calls run in the loop's executor.
-- No position is streamed until a rate is set (`set_rate_position`), so connect() sets the rates.
-- Health may never report "armable" (seen on simulators), so arming is retried instead of waiting for it.
-- Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`), and goto takes an AMSL
-  altitude: home AMSL + the wanted height above home.
-- MAVSDK's Python binding exposes no MAVLink signing (descriptions.PX4.signing): sign at a router
-  (mavlink-router) if needed.
+  async generators fed from MAVSDK's callback threads), `MavlinkDirectAsync`. Blocking calls run in the
+  loop's executor.
+- connect() waits for MAVSDK's System to say is_connected() and has_autopilot() and for its autopilot
+  type (calls made before can go nowhere); a vehicle not found names what was heard instead and, on a
+  port of a PX4 SITL instance above 9, the port such instances really send to (14549).
+- PX4 streams GLOBAL_POSITION_INT at ~50 Hz unasked; connect() sets MAVSDK's rates (position 5 Hz).
+- Ready means a position, home, and MAVSDK's health for the local and global position estimates and
+  home; "armable" was seen never to come on simulators, so arming is retried instead of waited for.
+- Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`; PX4's default 2.5 m).
+- The reposition is MAV_CMD_DO_REPOSITION as COMMAND_INT with an AMSL altitude (home AMSL + the height
+  above home), sent through MavlinkDirect with its COMMAND_ACK read here: MAVSDK's own command sender
+  (goto_location, MavlinkDirect.send_command) cannot take an UNSUPPORTED_MAV_FRAME answer (send_command
+  aborted the process, goto_location kept resending and never returned). The frame is the first of
+  descriptions.PX4.reposition_frames the vehicle takes, kept per vehicle.
+- Knowledge TUNNELs go out on the vehicle's link through MavlinkDirect, from MAVSDK's own system and
+  component ids (245/190), unsigned; their payload names the sending vehicle.
+- No MAVLink signing: MAVSDK's Python binding has none, and PX4 SITL has no MAV_SIGN_CFG
+  (descriptions.PX4.signing); sign at a router (mavlink-router) if the link needs it.
 - The speed parameters (descriptions.PX4.limit_parameters) are read with MAVSDK's param plugin.
 - A geofence goes up with MAVSDK's geofence plugin (the mission protocol, mission_type FENCE). PX4 has
-  no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None).
+  no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None); a reposition
+  outside it is ACCEPTED and the vehicle holds ("Reposition is outside geofence").
+- PX4 sets home again at every arming (COM_HOME_EN 1): a return goes to where the vehicle last armed.
 """
 
 from __future__ import annotations
