@@ -6,8 +6,9 @@
   not used. Each agent writes each of its frames once, on its own vehicle's MAVLink link (ArduPilot
   through pymavlink), so the recording holds them and an onboard agent or ground station behind the
   vehicle's routing sees them; never on the other vehicles' links. A PX4 vehicle flown through MAVSDK
-  has no such link here: its agent shares through the bus only, and the recording has its knowledge in
-  the snapshots (knowledge.jsonl).
+  sends them through MAVSDK's MavlinkDirect (from MAVSDK's ids 245/190, unsigned; the payload names
+  the sender); that link is not in the tlog, so the recording has its knowledge in the snapshots
+  (knowledge.jsonl).
 - Onboard mode (`swarmctl agent`: the plan flies some vehicles; the others' agents run elsewhere):
   each agent has a UDP socket that sends to `[knowledge] channel` (a MAVLink router or telemetry mesh
   that forwards to every agent) and reads what it forwards; every datagram in and out is recorded.
@@ -88,7 +89,7 @@ def describe(plan: MissionPlan) -> list[str]:
     else:
         line = (
             "knowledge: shared in this process (no hub to run); each agent's TUNNEL messages also go out once "
-            "on its own vehicle's MAVLink link (PX4 vehicles through MAVSDK: in the recording's snapshots only)"
+            "on its own vehicle's MAVLink link (PX4 vehicles: through MAVSDK, not in the tlog)"
         )
         if spec.knowledge.channel is not None:
             line += f"; [knowledge] channel {spec.knowledge.channel} is for swarmctl agent, fly does not use it"
