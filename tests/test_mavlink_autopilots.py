@@ -118,7 +118,8 @@ def test_a_personality_is_built_on_its_firmwares_description(name):
         assert mode in a.modes
     assert a.command_mode in p.target_modes
     assert a.retries_arm(MAV_RESULT_NAMES[p.arm_refused])  # the driver retries what the mock answers
-    assert a.is_pilot_mode(p.boot_mode)  # after boot the vehicle is in a pilot's mode, not swarmctl's
+    # after boot: ArduCopter in STABILIZE (a pilot's mode), PX4 SITL in AUTO.LOITER (HOLD, swarmctl's)
+    assert p.boot_mode == {"ardupilot": "STABILIZE", "px4": "HOLD"}[name]
 
 
 @pytest.mark.parametrize("name", AUTOPILOT_NAMES)

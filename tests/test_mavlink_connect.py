@@ -65,7 +65,7 @@ def test_without_a_key_the_heartbeat_picks_the_driver_and_a_px4_gets_its_connect
     assert [type(v) for v in vehicles] == [ArduPilotVehicle, PX4Vehicle]
     assert [v.autopilot for v in vehicles] == ["ardupilot", "px4"] and vehicles[1].sysid == 2
     assert opened == 2 and len(links) == 1  # the PX4's link was opened, read and handed to MAVSDK
-    assert modes == ["GUIDED", "POSCTL"]  # ArduPilot's preflight switches to GUIDED first
+    assert modes == ["GUIDED", "HOLD"]  # ArduPilot's preflight switches to GUIDED first; PX4 boots in HOLD
 
 
 def test_a_key_that_disagrees_with_the_heartbeat_or_with_mavsdk_is_refused_with_the_fix():

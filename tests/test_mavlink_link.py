@@ -316,7 +316,7 @@ def test_px4_personality_refuses_offboard_without_a_setpoint_stream():
 
     hb, err, mode = run(scenario())
     assert hb.autopilot == MAV.MAV_AUTOPILOT_PX4 and hb.type == MAV.MAV_TYPE_QUADROTOR
-    assert hb.custom_mode == px4_encode(3)  # POSCTL after boot
+    assert hb.custom_mode == px4_encode(4, 3)  # AUTO.LOITER (HOLD) after boot, as PX4 SITL
     assert err.result == "TEMPORARILY_REJECTED" and "Offboard" in err.reason
     assert mode == "OFFBOARD"
 

@@ -21,7 +21,7 @@ from swarmctl.errors import InputError
 from swarmctl.mavlink.autopilots import AUTOPILOT_NAMES
 from swarmctl.mavlink.autopilots.base import Autopilot, autopilot_for_heartbeat, autopilot_named, registered
 from swarmctl.mavlink.codec import Endpoint, parse_connection
-from swarmctl.mavlink.errors import MavlinkError, WrongAutopilot
+from swarmctl.mavlink.errors import MavlinkError, WaitTimeout, WrongAutopilot
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.mavlink.vehicle import Home, Position, Vehicle
 
@@ -87,7 +87,10 @@ class Connector:
                 reported = autopilot_named(said) if said in AUTOPILOT_NAMES else f"autopilot type {said} (MAVSDK)"
                 raise self._mismatch(name, sysid, endpoint, reported, expected) from None
         link = await self._link(endpoint)
-        peer = await link.wait_heartbeat(sysid, _left(deadline))
+        try:
+            peer = await link.wait_heartbeat(sysid, _left(deadline))
+        except WaitTimeout as exc:
+            raise with_port_hints(exc, endpoint, sysid) from None
         kind = peer.heartbeat.autopilot
         found = autopilot_for_heartbeat(kind)
         if found is None:
@@ -186,6 +189,16 @@ class NotConnected:
 
     async def close(self) -> None:
         """Nothing to release."""
+
+
+def with_port_hints(exc: WaitTimeout, endpoint: Endpoint, sysid: int) -> WaitTimeout:
+    """The timeout, with what each firmware says about a vehicle not heard on this port (PX4 SITL's port
+    wrap above instance 9)."""
+    port = endpoint.port if endpoint.kind == "udpin" else None
+    hints = [h for a in registered() if (h := a.silent_port_hint(port, sysid))]
+    if not hints:
+        return exc
+    return WaitTimeout(exc.what, exc.vehicle, exc.timeout, "; ".join(hints))
 
 
 def _endpoint(connection: str | Endpoint) -> Endpoint:

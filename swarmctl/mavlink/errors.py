@@ -29,7 +29,7 @@ class WaitTimeout(MavlinkError):
     """A state the vehicle should reach (ready, altitude, position, landed) was not reached in time."""
 
     def __init__(self, what: str, vehicle: str, timeout: float, detail: str = ""):
-        self.what, self.vehicle = what, vehicle
+        self.what, self.vehicle, self.timeout = what, vehicle, timeout
         extra = f" ({detail})" if detail else ""
         super().__init__(f"{vehicle}: timed out after {timeout:g} s waiting for {what}{extra}")
 
@@ -46,5 +46,5 @@ class NotReady(WaitTimeout):
     """A vehicle that did not become ready to arm in time; the message names the last reason it gave."""
 
     def __init__(self, vehicle: str, timeout: float, reason: str):
-        self.what, self.vehicle, self.reason = "ready to arm", vehicle, reason
+        self.what, self.vehicle, self.reason, self.timeout = "ready to arm", vehicle, reason, timeout
         MavlinkError.__init__(self, f"{vehicle}: not ready to arm after {timeout:g} s: {reason}")

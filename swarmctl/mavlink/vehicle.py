@@ -99,6 +99,11 @@ class Vehicle(abc.ABC):
         driver sees them; False when it does not (MAVSDK hands out no raw messages)."""
         return False
 
+    def write_frame(self, frame: bytes) -> bool:
+        """Send one packed MAVLink frame (a knowledge TUNNEL) on this vehicle's own link, without waiting;
+        False when the driver has no link to send it on (not connected, or the link is closing)."""
+        return False
+
     # --- connection and readiness -------------------------------------------------------------------
     @abc.abstractmethod
     async def connect(self, timeout: float = 15.0) -> None:

@@ -6,8 +6,9 @@
   not used. Each agent writes each of its frames once, on its own vehicle's MAVLink link (ArduPilot
   through pymavlink), so the recording holds them and an onboard agent or ground station behind the
   vehicle's routing sees them; never on the other vehicles' links. A PX4 vehicle flown through MAVSDK
-  has no such link here: its agent shares through the bus only, and the recording has its knowledge in
-  the snapshots (knowledge.jsonl).
+  sends them through MAVSDK's MavlinkDirect (from MAVSDK's ids 245/190, unsigned; the payload names
+  the sender); that link is not in the tlog, so the recording has its knowledge in the snapshots
+  (knowledge.jsonl).
 - Onboard mode (`swarmctl agent`: the plan flies some vehicles; the others' agents run elsewhere):
   each agent has a UDP socket that sends to `[knowledge] channel` (a MAVLink router or telemetry mesh
   that forwards to every agent) and reads what it forwards; every datagram in and out is recorded.
@@ -71,17 +72,11 @@ def open_exchange(
 
 def link_outlet(agent: Agent):
     """A frame writer onto the agent's own vehicle link (looked up at each frame: the vehicle is
-    connected after the agent is made); False when it has none (not connected yet, PX4 via MAVSDK)."""
+    connected after the agent is made): the driver's `write_frame`, False while it has no link."""
 
     def write(frame: bytes) -> bool:
-        writer = getattr(getattr(getattr(agent.vehicle, "link", None), "mav", None), "file", None)
-        if writer is None:
-            return False
-        try:
-            writer.write(frame)  # the link's transport, through the recorder's tap (tlog)
-        except (OSError, ValueError, AttributeError):  # a link closing: the bus has the message all the same
-            return False
-        return True
+        send = getattr(agent.vehicle, "write_frame", None)
+        return bool(send(frame)) if send is not None else False
 
     return write
 
@@ -94,7 +89,7 @@ def describe(plan: MissionPlan) -> list[str]:
     else:
         line = (
             "knowledge: shared in this process (no hub to run); each agent's TUNNEL messages also go out once "
-            "on its own vehicle's MAVLink link (PX4 vehicles through MAVSDK: in the recording's snapshots only)"
+            "on its own vehicle's MAVLink link (PX4 vehicles: through MAVSDK, not in the tlog)"
         )
         if spec.knowledge.channel is not None:
             line += f"; [knowledge] channel {spec.knowledge.channel} is for swarmctl agent, fly does not use it"

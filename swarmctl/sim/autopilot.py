@@ -36,7 +36,7 @@ import random
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from typing import Any
 
@@ -77,6 +77,7 @@ _STREAMABLE = {
     MAV.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
     MAV.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN,
 }
+MAV_RESULT_UNSUPPORTED_MAV_FRAME = 9  # newer than this pymavlink dialect
 PREARM_DISPLAY_S = 30.0  # simulated seconds between two "PreArm: ..." texts with the same reason
 
 
@@ -122,11 +123,12 @@ class MockAutopilot:
         signing_key: bytes | None = None,
         ready_after: float = 2.0,
         gcs_failsafe_timeout: float | None = 5.0,
-        rtl_alt: float = 15.0,
+        rtl_alt: float | None = None,
         battery_drain: float = 0.08,
         compid: int = 1,
         seed: int | None = None,
         tick: float = 0.02,
+        reposition_frames: Collection[int] | None = None,
     ):
         self.personality: Personality = personality_named(autopilot)  # ValueError naming the choices
         if not 1 <= sysid <= 255:
@@ -139,7 +141,7 @@ class MockAutopilot:
         self.ready_after = ready_after  # simulated seconds after boot before it can arm (boot.py)
         self.ekf_after: float | None = None  # the slow-EKF fault (slow_ekf); None: ready_after
         self.gcs_failsafe_timeout = gcs_failsafe_timeout  # wall seconds; None disables the failsafe
-        self.rtl_alt = rtl_alt
+        self.rtl_alt = self.personality.rtl_alt if rtl_alt is None else rtl_alt  # m above home
         self.battery_drain = battery_drain  # % per simulated second while flying
         self.tick = tick
         self.rng = random.Random(seed)
@@ -169,8 +171,14 @@ class MockAutopilot:
         self.params = dict(self.personality.params)
         for name, (attribute, scale) in self.personality.physics_params.items():
             self.params[name] = getattr(self, attribute) / scale
-        if "MAV_SYSID" in self.params:
-            self.params["MAV_SYSID"] = float(sysid)
+        for name in ("MAV_SYSID", "MAV_SYS_ID"):  # ArduPilot 4.7, PX4
+            if name in self.params:
+                self.params[name] = float(sysid)
+        # the frames a COMMAND_INT reposition is taken in (None: the personality's; e.g. {MAV_FRAME_GLOBAL}
+        # for a PX4 that refuses GLOBAL_INT)
+        self.reposition_frames = (
+            self.personality.reposition_frames if reposition_frames is None else frozenset(reposition_frames)
+        )
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -199,6 +207,7 @@ class MockAutopilot:
         self._prearm_shown: tuple[str | None, float] = (None, -math.inf)  # reason, sim time
         self.last_gcs_heartbeat: float | None = None
         self.gcs_failsafe = False
+        self._failsafe_done = False
         self.last_setpoint = -1e9
         # DO_FENCE_ENABLE is not saved: after a reboot a stored fence is off until enabled again (where
         # the personality's fence_enforced follows the switch at all)
@@ -481,8 +490,10 @@ class MockAutopilot:
             if self.armed
             else MAV.MAV_STATE_STANDBY
             if self.boot.has("standby")
-            else MAV.MAV_STATE_BOOT
+            else self.personality.boot_status
         )
+        if self.gcs_failsafe and self.armed:
+            status = MAV.MAV_STATE_CRITICAL  # PX4 SITL: from the link loss until the link is back
         autopilot = self.personality.autopilot.mav_autopilot
         return self.mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, autopilot, base, self.custom_mode, status)
 
@@ -646,6 +657,8 @@ class MockAutopilot:
             self.target = None
             self.vel = (0.0, 0.0, 0.0)
             self.statustext(self.personality.landed_text)
+            if self.personality.landed_mode is not None:
+                self.custom_mode = self.personality.custom_mode(self.personality.landed_mode)
 
     def _not_armable(self) -> str | None:
         """Why the vehicle could not arm now in its current mode (None: it could), as its pre-arm
@@ -703,23 +716,32 @@ class MockAutopilot:
             self.vel = ((n * step / dist / dt) if dist else 0.0, (e * step / dist / dt) if dist else 0.0, -dz_step / dt)
 
     def _failsafe(self, now: float) -> None:
-        """GCS failsafe: no controller heartbeat for gcs_failsafe_timeout s -> RTL (or disarm on ground)."""
-        if self.gcs_failsafe_timeout is None or self.last_gcs_heartbeat is None:
-            return
-        silent = now - self.last_gcs_heartbeat > self.gcs_failsafe_timeout
-        if not silent:
+        """GCS failsafe: no controller heartbeat for the personality's loss timeout -> hold for its delay,
+        then its action (ArduPilot RTL at once; PX4 NAV_DLL_ACT), or disarm on the ground. The mode stays
+        when the heartbeats come back."""
+        loss = self.personality.gcs_loss(self)
+        if loss is None or self.last_gcs_heartbeat is None:
             self.gcs_failsafe = False
             return
-        if self.gcs_failsafe:
+        timeout, hold_s, action = loss
+        silent_s = now - self.last_gcs_heartbeat
+        if silent_s <= timeout:
+            self.gcs_failsafe = False
             return
-        self.gcs_failsafe = True
-        if not self.armed:
+        if not self.gcs_failsafe:
+            self.gcs_failsafe = True
+            self._failsafe_done = False
+            if self.armed and self.rel_alt <= 0.05:
+                self.armed = False
+                self.statustext("GCS Failsafe: disarming", MAV.MAV_SEVERITY_CRITICAL)
+                self._failsafe_done = True
+            elif self.armed and hold_s > 0 and self.mode_name not in ("RTL", "LAND"):
+                self._set_mode_name(self.personality.autopilot.command_mode)
+        if self._failsafe_done or silent_s < timeout + hold_s:
             return
-        if self.rel_alt <= 0.05:
-            self.armed = False
-            self.statustext("GCS Failsafe: disarming", MAV.MAV_SEVERITY_CRITICAL)
-        elif self.mode_name not in ("RTL", "LAND"):
-            self._set_mode_name("RTL")
+        self._failsafe_done = True
+        if self.armed and self.mode_name not in ("RTL", "LAND", action):
+            self._set_mode_name(action)
             self.statustext(self.personality.failsafe_text, MAV.MAV_SEVERITY_CRITICAL)
 
     # --- receiving ----------------------------------------------------------------------------------------
@@ -799,6 +821,9 @@ class MockAutopilot:
         if msg.get_type() == "COMMAND_INT":
             p += [msg.x, msg.y, msg.z]
             frame = msg.frame
+            if command == MAV.MAV_CMD_DO_REPOSITION and not self._takes_frame(frame):
+                self._ack(msg, command, MAV_RESULT_UNSUPPORTED_MAV_FRAME)
+                return
         else:
             p += [msg.param5, msg.param6, msg.param7]
             frame = MAV.MAV_FRAME_GLOBAL
@@ -810,6 +835,9 @@ class MockAutopilot:
         result = self._run_command(msg, command, p, frame)
         if result is not None:
             self._ack(msg, command, result)
+
+    def _takes_frame(self, frame: int) -> bool:
+        return self.reposition_frames is None or frame in self.reposition_frames
 
     def _run_command(self, msg: Any, command: int, p: list[float], frame: int) -> int | None:
         R = MAV
@@ -855,7 +883,11 @@ class MockAutopilot:
         if command == R.MAV_CMD_COMPONENT_ARM_DISARM:
             return self._arm(p[0] >= 0.5, p[1] == 21196)
         if command == R.MAV_CMD_NAV_TAKEOFF:
-            return self.personality.takeoff(self, p[6])
+            result = self.personality.takeoff(self, p[6])
+            if result == R.MAV_RESULT_ACCEPTED and self.target is not None:
+                for text in self.personality.takeoff_texts:
+                    self.statustext(text.format(alt=self.target[2]))
+            return result
         if command == R.MAV_CMD_NAV_LAND:
             return self._set_mode_name("LAND")
         if command == R.MAV_CMD_NAV_RETURN_TO_LAUNCH:

@@ -74,6 +74,13 @@ class Personality(abc.ABC):
     breach_text: ClassVar[str]
     version: ClassVar[int]  # AUTOPILOT_VERSION.flight_sw_version
     capabilities: ClassVar[int]  # AUTOPILOT_VERSION.capabilities
+    boot_status: ClassVar[int] = MAV.MAV_STATE_BOOT  # HEARTBEAT.system_status before the "standby" stage
+    # the MAV_FRAMEs a DO_REPOSITION sent as COMMAND_INT is taken in (others: UNSUPPORTED_MAV_FRAME);
+    # None: any frame (COMMAND_LONG has none and is always taken)
+    reposition_frames: ClassVar[frozenset[int] | None] = None
+    takeoff_texts: ClassVar[tuple[str, ...]] = ()  # STATUSTEXTs when a take-off starts ({alt:.1f} m above home)
+    landed_mode: ClassVar[str | None] = None  # the mode after a landing or return has disarmed (None: it stays)
+    rtl_alt: ClassVar[float]  # the return's altitude above home by default (RTL_ALT, RTL_RETURN_ALT)
 
     @property
     def name(self) -> str:
@@ -113,12 +120,18 @@ class Personality(abc.ABC):
     def fence_enforced(self, enabled: bool, params: Mapping[str, float]) -> bool:
         """A stored fence is enforced, given the DO_FENCE_ENABLE switch and the parameters."""
 
+    @abc.abstractmethod
+    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
+        """The failsafe on a lost ground-station link (wall seconds without its heartbeat): (the loss
+        timeout, seconds of hold before the action, the action's mode); None: no failsafe."""
+
 
 class ArduPilotPersonality(Personality):
     """ArduCopter, as a real ArduCopter 4.7 SITL log shows it."""
 
     autopilot = ARDUPILOT
     boot_mode = "STABILIZE"
+    rtl_alt = 15.0  # RTL_ALT 1500 cm
     default_streams: Mapping[int, float] = {}  # a fresh ArduPilot sends only heartbeats
     params: Mapping[str, float] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return
         "FENCE_ENABLE": 0.0,
@@ -220,26 +233,38 @@ class ArduPilotPersonality(Personality):
     def fence_enforced(self, enabled: bool, params: Mapping[str, float]) -> bool:
         return enabled
 
+    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
+        # FS_GCS_ENABLE as the mock's gcs_failsafe_timeout says: RTL at once
+        return None if mock.gcs_failsafe_timeout is None else (mock.gcs_failsafe_timeout, 0.0, "RTL")
+
 
 class PX4Personality(Personality):
-    """PX4 multicopter, as MAVSDK sees it."""
+    """PX4 multicopter, as PX4 SITL (SIH, PX4 main of 2026-03-02, ../shared/px4) shows itself on its API link
+    (docs/mavlink.md, "What PX4 SITL showed")."""
 
     autopilot = PX4
-    boot_mode = "POSCTL"
-    default_streams: Mapping[int, float] = {  # PX4 streams telemetry unasked
-        MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.2,
-        MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.0,
-        MAV.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
-        MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    boot_mode = "HOLD"  # AUTO.LOITER on the ground, custom_mode 0x03040000, base_mode 29
+    boot_status = MAV.MAV_STATE_UNINIT  # system_status 0, then 3 (standby) at 4.3 s of 5.3
+    default_streams: Mapping[int, float] = {  # the API link's streams, unasked (PX4 SITL, Hz over 5 s)
+        MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.02,  # 49.6 Hz
+        MAV.MAVLINK_MSG_ID_GPS_RAW_INT: 0.125,  # 8 Hz
+        MAV.MAVLINK_MSG_ID_SYS_STATUS: 0.2,  # 5 Hz
+        MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 0.2,  # 5 Hz
+        MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.5,  # 0.4 Hz
     }
-    params: Mapping[str, float] = {  # the few parameters a PX4 ground station touches
+    params: Mapping[str, float] = {  # PX4 SITL's defaults of the parameters a PX4 ground station touches
         "MIS_TAKEOFF_ALT": 2.5,
         "MPC_XY_CRUISE": 5.0,
         "RTL_RETURN_ALT": 30.0,
-        "NAV_DLL_ACT": 2.0,
+        "NAV_DLL_ACT": 0.0,  # data-link loss action: 0 off, 1 hold, 2 return, 3 land
+        "COM_DL_LOSS_T": 10.0,  # s without a GCS heartbeat before the link counts as lost
+        "COM_FAIL_ACT_T": 5.0,  # s of hold before the failsafe's action
         "COM_OF_LOSS_T": 1.0,
-        "SYS_AUTOSTART": 4001.0,
+        "MAV_SYS_ID": 1.0,
+        "SYS_AUTOSTART": 10040.0,  # sihsim_quadx
         "GF_ACTION": 2.0,  # geofence breach: 2 = Hold (PX4's default)
+        "GF_MAX_HOR_DIST": 0.0,
+        "GF_MAX_VER_DIST": 0.0,
         "MPC_ACC_HOR": 3.0,  # the mock accelerates at once
         "MPC_TKO_SPEED": 2.5,  # MPC_TKO_SPEED, MPC_Z_V_AUTO_DN, MPC_LAND_SPEED follow the mock's speeds
         "MPC_Z_V_AUTO_DN": 1.5,
@@ -252,27 +277,35 @@ class PX4Personality(Personality):
         "MPC_TKO_SPEED": ("climb_rate", 1.0),
         "MPC_Z_V_AUTO_DN": ("descent_rate", 1.0),
         "MPC_LAND_SPEED": ("descent_rate", 1.0),
+        "RTL_RETURN_ALT": ("rtl_alt", 1.0),
     }
-    # position, home and the pre-arm checks all at once; telemetry streams from the start
-    stages = {"streams": 0.0, "standby": 1.0, "gps": 1.0, "origin": 1.0, "manual": 1.0}
+    # PX4 SITL, ready 5.3 s after launch: HOME_POSITION (and so a global position) 2.4 s, standby 4.3 s;
+    # telemetry streams from the first heartbeat
+    stages = {"streams": 0.0, "gps": 0.45, "origin": 0.45, "standby": 0.81, "manual": 1.0}
     position_before_ready = False  # PX4 publishes no global position before it has one
     arm_prefix = "Arming denied"
     not_ready_reason = "Global position required"
     outside_fence_reason = "Geofence violation"
     disarm_flying_text = "Disarming denied: not landed"
-    landed_text = "Disarmed"
-    failsafe_text = "Failsafe: no connection to ground station, returning"
+    landed_text = "Disarmed by landing"
+    landed_mode = "HOLD"  # SITL: AUTO.LOITER once disarmed, after a LAND and after an RTL
+    rtl_alt = 30.0  # RTL_RETURN_ALT; SITL climbed from 6 m to 30 m before returning
+    failsafe_text = "Failsafe activated"
+    takeoff_texts = ("Takeoff detected", "Using default takeoff altitude: {alt:.1f} m")
     target_modes = frozenset({"TAKEOFF", "HOLD", "OFFBOARD"})
     takeoff_mode = "TAKEOFF"  # AUTO.TAKEOFF, then HOLD
     setpoint_modes = frozenset({"OFFBOARD"})
     request_refused = MAV.MAV_RESULT_UNSUPPORTED
     reboot_refused = MAV.MAV_RESULT_DENIED
     reposition_refused = MAV.MAV_RESULT_DENIED
+    # as the SITL build: GLOBAL and GLOBAL_INT (a PX4 taking only one of them: the mock's
+    # `reposition_frames`); GLOBAL_RELATIVE_ALT (3) is refused with UNSUPPORTED_MAV_FRAME
+    reposition_frames = frozenset(PX4.reposition_frames)
     fence_enable_command = False  # an uploaded fence is enforced while GF_ACTION is not 0
     fence_inside_all = False
     breach_mode = "HOLD"  # GF_ACTION's default
     breach_text = "Geofence violated: holding"
-    version = (1 << 24) | (15 << 16)
+    version = (1 << 24) | (16 << 16)  # v1.16.0
     capabilities = _CAPABILITIES | MAV.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
     _needs_ready = frozenset({"HOLD", "RTL", "LAND", "MISSION", "TAKEOFF", "POSCTL"})
 
@@ -318,6 +351,14 @@ class PX4Personality(Personality):
 
     def fence_enforced(self, enabled: bool, params: Mapping[str, float]) -> bool:
         return params.get("GF_ACTION", 0.0) != 0.0
+
+    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
+        # NAV_DLL_ACT after COM_DL_LOSS_T, holding COM_FAIL_ACT_T first (SITL: critical at 11.7 s, RTL at
+        # 16.7 s with the defaults 10 and 5); the mock's gcs_failsafe_timeout None switches it off too
+        action = {1: "HOLD", 2: "RTL", 3: "LAND"}.get(int(mock.params.get("NAV_DLL_ACT", 0.0)))
+        if action is None or mock.gcs_failsafe_timeout is None:
+            return None
+        return mock.params["COM_DL_LOSS_T"], mock.params["COM_FAIL_ACT_T"], action
 
 
 PERSONALITIES: Mapping[str, Personality] = {p.name: p for p in (ArduPilotPersonality(), PX4Personality())}

@@ -152,6 +152,17 @@ class ArduPilotVehicle(Vehicle):
         self.link.add_listener(callback)
         return True
 
+    def write_frame(self, frame: bytes) -> bool:
+        """The frame, as it is (its own system id and signature), onto the link's transport."""
+        writer = getattr(getattr(self.link, "mav", None), "file", None)
+        if writer is None:
+            return False
+        try:
+            writer.write(frame)  # the link's transport, through the recorder's tap (tlog)
+        except (OSError, ValueError, AttributeError):  # a link closing
+            return False
+        return True
+
     # --- commands ------------------------------------------------------------------------------------
 
     async def _command(self, command: int, *params: float, **kw: Any) -> Any:

@@ -79,6 +79,11 @@ class Autopilot(abc.ABC):
         """A vehicle's speeds from the `limit_parameters` values read (by name, in the firmware's own
         units); a parameter missing, or not a usable number, counts as the firmware's default."""
 
+    def silent_port_hint(self, port: int | None, sysid: int | None) -> str:
+        """Why no vehicle of this firmware may be heard on `port` (the mission's UDP port, None for other
+        links) with this system id, and the fix; "" when there is nothing to say."""
+        return ""
+
     def retries_arm(self, result: str) -> bool:
         """True when an arm refused with this MAV_RESULT name means "not ready yet, try again"."""
         return result in (self.arm_refusal, "TEMPORARILY_REJECTED")

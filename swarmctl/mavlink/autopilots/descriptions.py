@@ -127,6 +127,9 @@ ARDUPILOT = register(ArduPilotAutopilot())
 
 # --- PX4 custom mode: main mode in bits 16..23, sub mode in bits 24..31 --------------------------------
 
+MAV_FRAME_GLOBAL, MAV_FRAME_GLOBAL_INT = 0, 5  # AMSL altitude; x, y in degE7 in COMMAND_INT for both
+REPOSITION_FRAME_REFUSED = 9  # MAV_RESULT_UNSUPPORTED_MAV_FRAME (newer than pymavlink's dialect here)
+
 # The modes swarmctl names, with their (main, sub) pair; sub modes belong to AUTO (4).
 PX4_MODES: Mapping[str, tuple[int, int]] = MappingProxyType(
     {
@@ -167,8 +170,9 @@ class PX4Autopilot(Autopilot):
     label = "PX4"
     mav_autopilot = 12  # MAV_AUTOPILOT_PX4
     command_mode = "HOLD"
-    # MAVSDK's flight-mode subscription was seen to report the pre-take-off POSCTL for a moment after
-    # the take-off: a pilot's mode counts once it has been reported for 1.5 s.
+    # MAVSDK's flight-mode subscription was seen to report the pre-take-off POSCTL for a moment after the
+    # take-off (of the mock, which then booted in POSCTL; PX4 SITL boots in AUTO.LOITER and reported no
+    # stick mode in its flights): a pilot's mode counts once it has been reported for 1.5 s.
     mode_debounce_s = 1.5
     signs_link = False
     signing = (
@@ -192,6 +196,15 @@ class PX4Autopilot(Autopilot):
     # up to 5 s more to come from 1 m to 0.5 m of a target (NAV_ACC_RAD is 2 m)
     spool_s, disarm_s, settle_s = 5.0, 8.0, 5.0
     own_connection = True  # MAVSDK opens the connection; one PX4 per connection
+    # MAV_CMD_DO_REPOSITION goes as COMMAND_INT with an AMSL altitude in one of these frames, tried in this
+    # order until one is not refused with REPOSITION_FRAME_REFUSED; the driver keeps the first accepted one
+    # for the vehicle. PX4 releases up to 1.16 and the SITL build in ../shared/px4 take both; stock PX4 main
+    # since February 2026 refuses one of them with 9 (../shared/px4/README says GLOBAL_INT; MAVSDK 4.1's
+    # goto_location, which it says fails there, sends GLOBAL). GLOBAL_RELATIVE_ALT is refused (SITL: 9).
+    reposition_frames = (MAV_FRAME_GLOBAL_INT, MAV_FRAME_GLOBAL)
+    # the API (offboard) link of SITL instance N sends to UDP 14540 + N for N 0..9, and to 14549 above 9
+    # (px4-rc.mavlink: "use the same ports for more than 10 instances")
+    api_port_base, api_port_wrapped, api_instances = 14540, 14549, 10
     # the modes a pilot selects with the sticks, as MAVSDK names them
     pilot_modes = frozenset({"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"})
 
@@ -208,6 +221,19 @@ class PX4Autopilot(Autopilot):
 
     def retries_arm(self, result: str) -> bool:
         return True  # MAVSDK names its refusals its own way (COMMAND_DENIED, ...): every one is retried
+
+    def silent_port_hint(self, port: int | None, sysid: int | None) -> str:
+        """Why no PX4 may be heard on UDP `port` (the mission's connection) and how to fix it; "" when the
+        port is not one a PX4 SITL instance above 9 would have been given."""
+        base, wrapped, count = self.api_port_base, self.api_port_wrapped, self.api_instances
+        instance = port - base if port is not None else (sysid - 1 if sysid else -1)
+        if not count <= instance < 256:
+            return ""
+        return (
+            f"a PX4 SITL instance above {count - 1} (here {instance}: port {base}+{instance}, system id "
+            f"{instance + 1}) sends its API link to UDP {wrapped}, not {base + instance}; connect it with "
+            f"udpin:0.0.0.0:{wrapped} (one such instance at a time) or start it as an instance 0-{count - 1}"
+        )
 
     def set_mode_params(self, name: str) -> tuple[float, float]:
         main, sub = px4_decode(self.custom_mode(name))  # param2 the main mode, param3 the sub mode

@@ -1,29 +1,43 @@
 """PX4 through MAVSDK (the `mavsdk` 4.x package: a native libcmavsdk binding, no mavsdk_server process).
 
-Every PX4/MAVSDK quirk the controller depends on lives here:
+Every PX4/MAVSDK quirk the controller depends on lives here (checked against PX4 SITL, ../shared/px4):
 - MAVSDK's asyncio wrappers: `mavsdk.asyncio.Mavsdk`, `ActionAsync`, `TelemetryAsync` (`subscribe_*`
-  async generators fed from MAVSDK's callback threads). Blocking calls run in the loop's executor.
-- No position is streamed until a rate is set (`set_rate_position`), so connect() sets the rates.
-- Health may never report "armable" (seen on simulators), so arming is retried instead of waiting for it.
-- Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`), and goto takes an AMSL
-  altitude: home AMSL + the wanted height above home.
-- MAVSDK's Python binding exposes no MAVLink signing (descriptions.PX4.signing): sign at a router
-  (mavlink-router) if needed.
+  async generators fed from MAVSDK's callback threads), `MavlinkDirectAsync`. Blocking calls run in the
+  loop's executor.
+- connect() waits for MAVSDK's System to say is_connected() and has_autopilot() and for its autopilot
+  type (calls made before can go nowhere); a vehicle not found names what was heard instead and, on a
+  port of a PX4 SITL instance above 9, the port such instances really send to (14549).
+- PX4 streams GLOBAL_POSITION_INT at ~50 Hz unasked; connect() sets MAVSDK's rates (position 5 Hz).
+- Ready means a position, home, and MAVSDK's health for the local and global position estimates and
+  home; "armable" was seen never to come on simulators, so arming is retried instead of waited for.
+- Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`; PX4's default 2.5 m).
+- The reposition is MAV_CMD_DO_REPOSITION as COMMAND_INT with an AMSL altitude (home AMSL + the height
+  above home), sent through MavlinkDirect with its COMMAND_ACK read here: MAVSDK's own command sender
+  (goto_location, MavlinkDirect.send_command) cannot take an UNSUPPORTED_MAV_FRAME answer (send_command
+  aborted the process, goto_location kept resending and never returned). The frame is the first of
+  descriptions.PX4.reposition_frames the vehicle takes, kept per vehicle.
+- Knowledge TUNNELs go out on the vehicle's link through MavlinkDirect, from MAVSDK's own system and
+  component ids (245/190), unsigned; their payload names the sending vehicle.
+- No MAVLink signing: MAVSDK's Python binding has none, and PX4 SITL has no MAV_SIGN_CFG
+  (descriptions.PX4.signing); sign at a router (mavlink-router) if the link needs it.
 - The speed parameters (descriptions.PX4.limit_parameters) are read with MAVSDK's param plugin.
 - A geofence goes up with MAVSDK's geofence plugin (the mission protocol, mission_type FENCE). PX4 has
-  no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None).
+  no separate switch for it: an uploaded fence is enforced while GF_ACTION is not 0 (None); a reposition
+  outside it is ACCEPTED and the vehicle holds ("Reposition is outside geofence").
+- PX4 sets home again at every arming (COM_HOME_EN 1): a return goes to where the vehicle last armed.
 """
 
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
 import math
 import time
 from collections.abc import Callable
 from typing import Any
 
-from swarmctl.mavlink.autopilots.descriptions import PX4
+from swarmctl.mavlink.autopilots.descriptions import PX4, REPOSITION_FRAME_REFUSED
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 from swarmctl.mavlink.errors import (
     CommandRejected,
@@ -33,7 +47,7 @@ from swarmctl.mavlink.errors import (
     WaitTimeout,
     WrongAutopilot,
 )
-from swarmctl.mavlink.network import cancel_tasks
+from swarmctl.mavlink.network import MAV, cancel_tasks
 from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
 
 log = logging.getLogger(__name__)
@@ -43,6 +57,21 @@ _mavsdk_log_installed = False
 _MODE_NAMES = {"RETURN_TO_LAUNCH": "RTL"}
 # MAVSDK's autopilot types -> the autopilot names of swarmctl's descriptions
 _AUTOPILOT_NAMES = {"PX4": "px4", "ARDUPILOT": "ardupilot"}
+_RESULT_NAMES = {REPOSITION_FRAME_REFUSED: "UNSUPPORTED_MAV_FRAME"}
+_FRAME_NAMES = {0: "GLOBAL", 5: "GLOBAL_INT"}
+_COMMAND_ACK_S, _COMMAND_ATTEMPTS = 1.0, 3  # a COMMAND_INT sent through MavlinkDirect: wait, attempts
+_OUTBOX_MAX = 256  # knowledge frames waiting for MAVSDK; more are dropped (the bus has them all the same)
+
+
+def result_name(result: int) -> str:
+    """The MAV_RESULT name of a COMMAND_ACK result."""
+    entry = MAV.enums["MAV_RESULT"].get(result)
+    return _RESULT_NAMES.get(result) or (entry.name.removeprefix("MAV_RESULT_") if entry else f"MAV_RESULT {result}")
+
+
+def _json(fields: dict[str, Any]) -> str:
+    """A message's fields as MavlinkDirect's JSON (NaN, which JSON lacks, as null)."""
+    return json.dumps({k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in fields.items()})
 
 
 def _route_mavsdk_log() -> None:
@@ -103,12 +132,21 @@ class PX4Vehicle(Vehicle):
         self._connected = False
         self._battery: int | None = None
         self.reported_autopilot: str | None = None  # what MAVSDK identified: "px4", "ardupilot", "GENERIC"
+        self.direct: Any = None  # MAVSDK's MavlinkDirect plugin: raw COMMAND_INT and TUNNEL
+        self.reposition_frame: int | None = None  # the MAV_FRAME this vehicle accepted a reposition in
+        self._health: Any = None
+        self._acks: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        self._command_lock = asyncio.Lock()
+        self._outbox: asyncio.Queue[dict[str, Any]] = asyncio.Queue(_OUTBOX_MAX)
+        self._parser = MAV.MAVLink(None)
+        self.frames_sent = 0  # knowledge frames MAVSDK sent on the vehicle's link
 
     # --- connection --------------------------------------------------------------------------------
 
     async def connect(self, timeout: float = 15.0) -> None:
         from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
         from mavsdk.asyncio.plugins.action import ActionAsync
+        from mavsdk.asyncio.plugins.mavlink_direct import MavlinkDirectAsync
         from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
         _route_mavsdk_log()
@@ -122,7 +160,7 @@ class PX4Vehicle(Vehicle):
         while system is None:
             left = deadline - time.monotonic()
             if left <= 0:
-                raise WaitTimeout("a PX4 autopilot", self.name, timeout)
+                raise WaitTimeout("a PX4 autopilot", self.name, timeout, await self._silence())
             # first_autopilot, not get_systems: with mavsdk 4.1 a System taken from get_systems()
             # was seen to drop parameter writes (set_takeoff_altitude) silently.
             system = await self._sdk.first_autopilot(timeout_s=min(left, 1.0))
@@ -135,6 +173,7 @@ class PX4Vehicle(Vehicle):
                     await asyncio.sleep(0.1)
         self._system = system
         self.sysid = await system.get_system_id()
+        await self._wait_link(system, deadline, timeout)
         # MAVSDK picks PX4 or ArduPilot behaviour (parameters, modes) once it has identified the
         # autopilot; calls made before then can silently go nowhere, so wait for that first.
         # (an IntEnum: its str() is the number, so compare names)
@@ -146,6 +185,7 @@ class PX4Vehicle(Vehicle):
         if self.reported_autopilot != PX4.name:
             raise WrongAutopilot(self.name, self.reported_autopilot, PX4.name)
         self.action, self.telemetry = ActionAsync(system), TelemetryAsync(system)
+        self.direct = MavlinkDirectAsync(system)
         self._connected = True
         follow = {
             "subscribe_position": self._on_position,
@@ -153,11 +193,15 @@ class PX4Vehicle(Vehicle):
             "subscribe_armed": self._on_armed,
             "subscribe_flight_mode": self._on_mode,
             "subscribe_battery": self._on_battery,
+            "subscribe_health": self._on_health,
         }
         self._tasks = [
             asyncio.create_task(self._follow(getattr(self.telemetry, sub), cb)) for sub, cb in follow.items()
         ]
         self._tasks.append(asyncio.create_task(self._follow(system.is_connected_state, self._on_connected)))
+        acks = lambda: self.direct.subscribe_message("COMMAND_ACK")  # noqa: E731
+        self._tasks.append(asyncio.create_task(self._follow(acks, self._on_ack)))
+        self._tasks.append(asyncio.create_task(self._send_frames()))
         await self._call("set_rate_position", self.telemetry.set_rate_position, self.telemetry_rate_hz)
         for setter in ("set_rate_home", "set_rate_battery"):
             try:
@@ -169,6 +213,37 @@ class PX4Vehicle(Vehicle):
     async def _follow(generator_fn: Any, callback: Any) -> None:
         async for item in generator_fn():
             callback(item)
+
+    async def _silence(self) -> str:
+        """What was heard instead of this PX4, and the instance-port wrap when the port is one of it."""
+        heard = {await s.get_system_id(): await s.is_connected() for s in await self._sdk.get_systems()}
+        if self.sysid in heard and not heard[self.sysid]:
+            said = f"system id {self.sysid} is heard on {self.endpoint} but sends no HEARTBEAT"
+        elif heard:
+            said = f"heard system ids {', '.join(map(str, sorted(heard)))} on {self.endpoint}"
+            said += f", not {self.sysid}" if self.sysid is not None else ", none of them an autopilot"
+        else:
+            said = f"nothing heard on {self.endpoint}"
+        port = self.endpoint.port if self.endpoint.kind == "udpin" else None
+        hint = PX4.silent_port_hint(port, self.sysid)
+        return f"{said}; {hint}" if hint else said
+
+    async def _wait_link(self, system: Any, deadline: float, timeout: float) -> None:
+        """MAVSDK's System is_connected() and has_autopilot(): a first script without this wait stalled."""
+        while True:
+            lacking = [
+                what
+                for what, ok in (
+                    ("is_connected()", await system.is_connected()),
+                    ("has_autopilot()", await system.has_autopilot()),
+                )
+                if not ok
+            ]
+            if not lacking:
+                return
+            if time.monotonic() > deadline:
+                raise WaitTimeout("MAVSDK's link to the PX4", self.name, timeout, "false: " + ", ".join(lacking))
+            await asyncio.sleep(0.05)
 
     def _on_position(self, p: Any) -> None:
         if math.isfinite(p.latitude_deg) and (p.latitude_deg or p.longitude_deg):
@@ -189,6 +264,17 @@ class PX4Vehicle(Vehicle):
         pct = getattr(b, "remaining_percent", float("nan"))
         self._battery = int(pct) if math.isfinite(pct) else None
 
+    def _on_health(self, h: Any) -> None:
+        self._health = h
+
+    def _on_ack(self, m: Any) -> None:
+        try:
+            ack = json.loads(m.fields_json)
+        except ValueError:
+            return
+        if m.system_id == self.sysid:
+            self._acks.put_nowait(ack)
+
     def _on_connected(self, connected: bool) -> None:
         self._connected = bool(connected)
         log.info("%s: %s", self.name, "back" if connected else "lost")
@@ -204,15 +290,24 @@ class PX4Vehicle(Vehicle):
                 raise CommandTimeout(what, self.name, 0, 0.0) from None
             raise CommandRejected(what, self.name, rname, str(exc)) from None
 
+    def missing(self) -> list[str]:
+        """What the vehicle lacks to be flown: a position and home, and MAVSDK's health for the local and
+        global position estimates and the home position (empty: ready; arming is retried, not waited for:
+        MAVSDK's "armable" was seen never to come on simulators)."""
+        h = self._health
+        health = (
+            ("a local position estimate (health)", h is not None and h.is_local_position_ok),
+            ("a global position estimate (health)", h is not None and h.is_global_position_ok),
+            ("home position OK (health)", h is not None and h.is_home_position_ok),
+        )
+        known = (("a position", self._position is not None), ("home", self._home is not None), *health)
+        return [what for what, ok in known if not ok]
+
     async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
-        """Position and home known; PX4's health flags are not waited for (arming is retried)."""
-
-        def missing() -> list[str]:
-            return [what for what, known in (("a position", self._position), ("home", self._home)) if known is None]
-
+        """Position and home known and MAVSDK's health saying so (`missing`); NotReady names what is not."""
         waiting = ""
         deadline = time.monotonic() + timeout
-        while lacking := missing():
+        while lacking := self.missing():
             if (text := "waiting for " + ", ".join(lacking)) != waiting:
                 waiting = text
                 if report is not None:
@@ -239,6 +334,9 @@ class PX4Vehicle(Vehicle):
     async def close(self) -> None:
         await cancel_tasks(self._tasks)
         self._tasks = []
+        if self.direct is not None:
+            self.direct.destroy()
+            self.direct = None
         if self._sdk is not None:
             self._sdk.destroy()
             self._sdk = None
@@ -289,7 +387,95 @@ class PX4Vehicle(Vehicle):
         if home is None:
             raise MavlinkError(f"{self.name}: no home position yet, cannot convert to AMSL")
         self.target = Target(lat, lon, rel_alt)
-        await self._call("goto_location", self.action.goto_location, lat, lon, home.alt_amsl + rel_alt, float("nan"))
+        await self.reposition(lat, lon, home.alt_amsl + rel_alt)
+
+    async def reposition(self, lat: float, lon: float, alt_amsl: float) -> None:
+        """MAV_CMD_DO_REPOSITION as COMMAND_INT (what goto_location sends, but sent through MavlinkDirect:
+        MAVSDK 4.1's own command sender aborts the process on an UNSUPPORTED_MAV_FRAME ack). The frames of
+        descriptions.PX4 are tried in order until one is not refused for its frame; that one is kept."""
+        frames = PX4.reposition_frames if self.reposition_frame is None else (self.reposition_frame,)
+        for frame in frames:
+            fields = dict(
+                frame=frame, command=MAV.MAV_CMD_DO_REPOSITION, current=0, autocontinue=0,
+                param1=-1.0, param2=float(MAV.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE), param3=0.0, param4=math.nan,
+                x=round(lat * 1e7), y=round(lon * 1e7), z=float(alt_amsl),
+            )  # fmt: skip
+            result = await self.command_int("reposition", fields)
+            if result == MAV.MAV_RESULT_ACCEPTED:
+                if self.reposition_frame != frame:
+                    log.info("%s: repositions in frame %s", self.name, _FRAME_NAMES.get(frame, frame))
+                self.reposition_frame = frame
+                return
+            if result != REPOSITION_FRAME_REFUSED or frame == frames[-1]:
+                tried = ", ".join(_FRAME_NAMES.get(f, str(f)) for f in frames[: frames.index(frame) + 1])
+                raise CommandRejected("reposition", self.name, result_name(result), f"frame {tried}")
+            log.info("%s: reposition in frame %s refused (%s)", self.name, _FRAME_NAMES.get(frame), result_name(result))
+
+    async def command_int(self, what: str, fields: dict[str, Any]) -> int:
+        """Send a COMMAND_INT (its fields but the target) through MavlinkDirect and wait for its COMMAND_ACK:
+        the MAV_RESULT. Sent again after _COMMAND_ACK_S without one; CommandTimeout after the last try."""
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        if self.direct is None or self.sysid is None:
+            raise MavlinkError(f"{self.name}: not connected, cannot send {what}")
+        body = _json({"target_system": self.sysid, "target_component": 1, **fields})
+        message = MavlinkMessage("COMMAND_INT", 0, 0, self.sysid, 1, body)
+        async with self._command_lock:
+            while not self._acks.empty():  # answers to earlier, given-up commands
+                self._acks.get_nowait()
+            for _attempt in range(_COMMAND_ATTEMPTS):
+                try:
+                    await self.direct.send_message(message)
+                except Exception as exc:
+                    raise MavlinkError(f"{self.name}: MAVSDK could not send {what}: {exc}") from None
+                try:
+                    return await asyncio.wait_for(self._ack_of(fields["command"]), _COMMAND_ACK_S)
+                except TimeoutError:
+                    continue
+        raise CommandTimeout(what, self.name, _COMMAND_ATTEMPTS, _COMMAND_ACK_S)
+
+    async def _ack_of(self, command: int) -> int:
+        while True:
+            ack = await self._acks.get()
+            if ack.get("command") == command and ack.get("result") != MAV.MAV_RESULT_IN_PROGRESS:
+                return int(ack["result"])
+
+    # --- knowledge frames on the vehicle's link -------------------------------------------------------
+
+    def write_frame(self, frame: bytes) -> bool:
+        """A packed TUNNEL sent again through MAVSDK's MavlinkDirect, in order, without waiting. MAVSDK
+        sends it from its own system and component ids (245/190 by default), unsigned: the frame's own
+        ids and signature do not survive, the payload (which names its sender vehicle) does."""
+        if self.direct is None:
+            return False
+        try:
+            msgs = self._parser.parse_buffer(frame) or []
+        except Exception:  # not one whole MAVLink frame
+            return False
+        tunnels = [m for m in msgs if m.get_type() == "TUNNEL"]
+        for m in tunnels:
+            fields = dict(
+                target_system=m.target_system, target_component=m.target_component,
+                payload_type=m.payload_type, payload_length=m.payload_length,
+                payload=list(m.payload[: m.payload_length]),
+            )  # fmt: skip
+            try:
+                self._outbox.put_nowait(fields)
+            except asyncio.QueueFull:
+                return False
+        return bool(tunnels)
+
+    async def _send_frames(self) -> None:
+        from mavsdk.plugins.mavlink_direct import MavlinkMessage
+
+        while True:
+            fields = await self._outbox.get()
+            message = MavlinkMessage("TUNNEL", 0, 0, fields["target_system"], fields["target_component"], _json(fields))
+            try:
+                await self.direct.send_message(message)
+                self.frames_sent += 1
+            except Exception as exc:  # the link going away; the bus has the knowledge all the same
+                log.info("%s: MAVSDK did not send a knowledge frame: %s", self.name, exc)
 
     async def land(self) -> None:
         await self._call("land", self.action.land)
