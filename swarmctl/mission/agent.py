@@ -86,7 +86,7 @@ class Agent:
         self.index, self.spec, self.vehicle = index, spec, vehicle
         self.exchange, self.feed = exchange, feed
         self.detector = detector  # "mavlink" or a local socket (Endpoint); None: sensing from position only
-        self.visited: set[tuple[int, int]] = set()  # cells the vehicle reached (its reports count there)
+        self.visited: dict[tuple[int, int], int] = {}  # cells the vehicle reached -> the step it last did
         self.sensor_dropped = 0  # report entries outside the footprints of the cells it reached
         self.unexpected_reports = False  # reports came although the mission gives it no detector
         self.knowledge: Knowledge = exchange.knowledge
@@ -179,7 +179,7 @@ class Agent:
         """Nothing to do each round: the vehicle's odometer follows its telemetry (see `distance`)."""
 
     def received_since(self) -> int:
-        """Knowledge messages accepted since the last call."""
-        total = sum(self.exchange.codec.accepted.values())
+        """Knowledge messages accepted (decoded and admitted by the trust checks) since the last call."""
+        total = self.exchange.merged()
         new, self._accepted = total - self._accepted, total
         return new

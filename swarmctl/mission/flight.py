@@ -86,7 +86,7 @@ async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) ->
         return []
     on_target = a.state is State.HOVER
     if moved:
-        a.visited.add(a.cell)
+        a.visited[a.cell] = c.step
         if a.detector is not None:
             report = await a.feed.wait_report(
                 a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
@@ -107,15 +107,13 @@ async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) ->
         c.rec.event("report_dropped", vehicle=a.name, step=c.step, dropped=sensed.dropped)
     found = [(int(x), int(y)) for x, y in sensed.targets]
     fresh = [t for t in found if t not in kn.targets]
-    ex.step(
-        c.step,
-        a.cell,
-        on_target,
-        sensed.cells,
-        sensed.phi,
-        sensed.obstacle,
-        targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
-    )
+    ex.step(c.step, a.cell, on_target, sensed.cells, sensed.phi, sensed.obstacle)
+    seen: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for t, origin in zip(found, sensed.seen_from.tolist()):
+        if t in fresh:
+            seen.setdefault((int(origin[0]), int(origin[1])), []).append(t)
+    for origin, targets in seen.items():  # with the step and cell they were seen from (the others check it)
+        ex.report_targets(np.array(targets, dtype=np.int64), a.visited.get(origin, c.step), seen_from=origin)
     if fresh:
         latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
         c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
