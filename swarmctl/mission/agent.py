@@ -8,7 +8,8 @@ carries out the side effects (cancel a rejoin, send the vehicle home) and the sw
 
     new -> connect -> preflight -> takeoff -> search <-> hover
     search / hover / rejoin -> lost -> rejoin -> search        (link loss and return)
-    search / hover -> override                                 (a pilot's mode)
+    search / hover -> override                                 (a pilot's mode, or not commanded:
+                                                                swarmctl.mission.watch)
     search -> low battery                                      (sent home)
     any of them -> failed; any but ended -> ended              (the end action was given)
 """
@@ -102,6 +103,11 @@ class Agent:
         self.notes: dict[str, float] = {}  # preflight note -> when it was last shown (time.monotonic())
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
+        self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
+        self.watch_from: tuple[int, int] | None = None  # the cell held at the last off-course check
+        self.off_course = 0  # rounds in a row the vehicle was off course
+        self.climbed = False  # at the mission altitude since it was first seen commanded
+        self.alarm: str | None = None  # what the live table shows (off course)
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
 
@@ -131,7 +137,7 @@ class Agent:
         """The transition the vehicle's own reports call for, with what to record; None: none.
 
         Link lost (now, or briefly since the agent last looked) -> lost; back -> rejoin; a pilot's mode
-        for the autopilot's debounce time -> override; a battery below `low_battery` % while
+        for the autopilot's debounce time -> override (reason "pilot"); a battery below `low_battery` % while
         searching -> low battery."""
         lost = self.vehicle.lost
         if self.state in (State.SEARCH, State.HOVER, State.REJOIN) and (lost or self.saw_loss):
@@ -140,7 +146,8 @@ class Agent:
         if self.state is State.LOST and not lost:
             return State.REJOIN, {}
         if self.state in (State.SEARCH, State.HOVER) and self.pilot_has_it(time.monotonic() if now is None else now):
-            return State.OVERRIDE, {"mode": self.vehicle.mode}
+            self.override_reason = "pilot"
+            return State.OVERRIDE, {"mode": self.vehicle.mode, "reason": "pilot"}
         battery = self.battery()
         if self.state is State.SEARCH and battery is not None and battery < low_battery:
             return State.LOW_BATTERY, {"battery": battery}

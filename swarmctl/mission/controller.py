@@ -273,7 +273,8 @@ class Controller:
             self.rec.event("end_action", vehicle=a.name, action="none: link lost")
             return
         if a.state is State.OVERRIDE:
-            a.end_state = f"pilot ({a.vehicle.mode})"
+            who = "pilot" if a.override_reason == "pilot" else f"taken over, {a.override_reason}"
+            a.end_state = f"{who} ({a.vehicle.mode})"
             return
         action = plan.spec.mission.end_action
         if action == "hover" and a.state is not State.HOVER:
