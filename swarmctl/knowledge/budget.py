@@ -5,17 +5,20 @@ cells the receiver knows there, a request for a whole chunk draws up to 880 cell
 amplifies whatever reaches the channel. Here (CONTRACTS.md, "Replies to digests and requests"):
 
 - only mission members get answers (the exchange answers only messages `KnowledgeTrust.admit` took);
-- each member earns CREDIT (2) bytes of answers per byte received from it, any kind, and once per
-  digest period REPAIR_ALLOWANCE bytes more if it was heard in the period that just ended (a late
-  joiner's requests and digests earn it its repairs; the allowance keeps a vehicle that lost its
-  requests converging); a bucket holds at most BUCKET_CAP bytes;
+- each member earns CREDIT (2) bytes of answers per byte received from it, any kind (a late joiner's
+  own deltas, digests and requests earn it its repairs), and, on a signed channel, once per digest
+  period REPAIR_ALLOWANCE bytes more if it was heard in the period that just ended (the allowance
+  keeps a quiet vehicle that lost its requests converging); a bucket holds at most BUCKET_CAP bytes;
 - an answer frame goes out only while the bucket holds its size; the rest is withheld and counted;
 - each peer gets at most one push and one repair per digest chunk per digest period (what it asks for
   in one period, the protocol asks once), however many digests or requests arrive.
 
-So a message earns at most twice its size in answers, plus the allowance once per period for a member
-that keeps talking. Bounds: one bucket per member (at most 256), one `first` entry per (kind, member,
-chunk).
+So a message earns at most twice its size in answers. The allowance is given only where members are
+authenticated (a signing key): on an unsigned channel anyone can send as a member, and a fixed
+allowance would let one 34-byte digest per period draw 512 bytes (measured: x5 at one digest a step;
+with 2x alone, under 2 for every kind: docs/security.md).
+
+Bounds: one bucket per member (at most 256), one `first` entry per (kind, member, chunk).
 """
 
 from __future__ import annotations
@@ -34,10 +37,14 @@ class _Bucket:
 
 
 class AnswerBudget:
-    """The answer budgets of one vehicle (see the module docstring)."""
+    """The answer budgets of one vehicle (see the module docstring); `signed`: the channel is signed,
+    so members get the repair allowance."""
 
-    def __init__(self, credit: float = CREDIT, allowance: float = REPAIR_ALLOWANCE, cap: float = BUCKET_CAP):
-        self.credit, self.allowance, self.cap = float(credit), float(allowance), float(cap)
+    def __init__(
+        self, signed: bool = False, credit: float = CREDIT, allowance: float = REPAIR_ALLOWANCE, cap: float = BUCKET_CAP
+    ):
+        self.credit, self.cap = float(credit), float(cap)
+        self.allowance = float(allowance) if signed else 0.0  # see the module docstring
         self._buckets: dict[int, _Bucket] = {}
         self._period: int | None = None
         self._first: dict[tuple[str, int, int], int] = {}  # (kind, peer, chunk) -> period last answered

@@ -109,7 +109,7 @@ class KnowledgeExchange:
             mission_id, knowledge.width, knowledge.height, system_id=self.system_id, signing_key=signing_key
         )
         self.trust = KnowledgeTrust(members, fov)
-        self.budget = AnswerBudget()
+        self.budget = AnswerBudget(signed=signing_key is not None)
         self._found: dict[tuple[int, int], tuple[int, tuple[int, int] | None]] = {}  # own finds: (step, seen from)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
         self._inbox: deque[tuple[object, str, int]] = deque()  # bus deliveries: (message, kind, frame bytes)
@@ -173,6 +173,9 @@ class KnowledgeExchange:
                     continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
+            if answering is not None:
+                self.stats["answer_packets"] += 1
+                self.stats["answer_bytes"] += len(frame)
 
     def step(
         self,
@@ -347,9 +350,10 @@ class KnowledgeExchange:
         return dict(out)
 
     def counters(self) -> dict[str, int]:
-        """sent/received packets and bytes, deltas, digests, requests, repairs, pushes, answer frames
-        withheld by the budget (`withheld`), accepted per kind (decoded), rejected per reason (prefixed
-        'rejected_': the codec's and the trust checks'), and `rejected` in all."""
+        """sent/received packets and bytes, deltas, digests, requests, repairs, pushes, answers to
+        digests and requests sent (`answer_packets`, `answer_bytes`) and withheld by the budget
+        (`withheld`), accepted per kind (decoded), rejected per reason (prefixed 'rejected_': the
+        codec's and the trust checks'), and `rejected` in all."""
         out = dict(self.stats)
         out.update({f"accepted_{k}": v for k, v in self.codec.accepted.items()})
         rejected = self.rejections()
