@@ -105,6 +105,7 @@ class Agent:
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
         self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
         self.watch_from: tuple[int, int] | None = None  # the cell held at the last off-course check
+        self.watch_pos: tuple[float, float] | None = None  # lat, lon at the last check it passed
         self.off_course = 0  # rounds in a row the vehicle was off course
         self.climbed = False  # at the mission altitude since it was first seen commanded
         self.alarm: str | None = None  # what the live table shows (off course)

@@ -376,8 +376,9 @@ class FlightTable(Table):
     )
     off_course_m: float = setting(
         10.0,
-        "distance from the path of its last step (the centre of the cell it held to the one it was sent to) "
-        "beyond which a vehicle is off course: flagged and sent its setpoint again",
+        "distance from the path of its last step (to the centre of the cell it was sent to, from the centre of "
+        "the cell it held or from where it last was on course) beyond which a vehicle is off course: flagged "
+        "and sent its setpoint again",
         ge=1.0,
         le=1000.0,
         unit="metres",

@@ -6,9 +6,11 @@ controller cannot stop that, but it knows where it sent each vehicle. At the sta
 step is in flight then) a vehicle is off course when
 
 - it is more than `[flight] off_course_m` metres (horizontally) from the path of its last step: the
-  segment from the centre of the cell it held at the last check to the centre of the cell it was sent
-  to (a vehicle still on its way after a step timeout is on that path; not checked the first round a
-  vehicle searches, after its launch or a rejoin, whose path is not a step); or
+  segment to the centre of the cell it was sent to from the centre of the cell it held at the last
+  check, or from where it was at the last check it passed, whichever is nearer (a vehicle still on its
+  way after a step timeout turns towards its new cell from there; a vehicle held away does not move
+  the start: only a position on course does). Not checked the first round a vehicle searches, after
+  its launch or a rejoin, whose path is not a step; or
 - it is more than `[flight] below_altitude_m` metres below the mission altitude (once it has been at
   that altitude since it was first seen commanded: a vehicle taken back from its failsafe climbs first).
 
@@ -49,9 +51,10 @@ Cell = tuple[int, int]
 
 
 def deviation(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[float, float] | None:
-    """(metres from the path from the centre of cell `start` to that of `cell`, metres below the mission
-    altitude) of the vehicle now (0 m off the path when `start` is None: no path known); None without a
-    position report."""
+    """(metres from the path to the centre of `cell`, metres below the mission altitude) of the vehicle
+    now; None without a position report. The path starts at the centre of cell `start` or where the
+    vehicle was at the last check it passed (`Agent.watch_pos`: a vehicle still on its way after a step
+    timeout turns from there), whichever is nearer; 0 m off it when `start` is None (no path known)."""
     pos = a.vehicle.position
     if pos is None:
         return None
@@ -59,7 +62,9 @@ def deviation(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[
     if start is None:
         return 0.0, below
     lat, lon = c.grid.cell_to_latlon(*cell)
-    return off_path_m(ne_m(lat, lon, pos.lat, pos.lon), ne_m(lat, lon, *c.grid.cell_to_latlon(*start))), below
+    here = ne_m(lat, lon, pos.lat, pos.lon)
+    starts = [c.grid.cell_to_latlon(*start)] + ([a.watch_pos] if a.watch_pos is not None else [])
+    return min(off_path_m(here, ne_m(lat, lon, *s)) for s in starts), below
 
 
 def problems(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[list[str], dict]:
@@ -97,11 +102,13 @@ async def watch(c: Controller) -> None:
     resend: list[Agent] = []
     for a in c.agents:
         if a.state not in (State.SEARCH, State.HOVER) or a.cell is None or a.vehicle.lost:
-            a.watch_from, a.off_course, a.alarm, a.climbed = None, 0, None, False
+            a.watch_from, a.watch_pos, a.off_course, a.alarm, a.climbed = None, None, 0, None, False
             continue
         found, detail = problems(c, a, a.watch_from, a.cell)
         a.watch_from = a.cell
         if not found:
+            pos = a.vehicle.position
+            a.watch_pos = None if pos is None else (pos.lat, pos.lon)  # only a position on course
             if a.alarm is not None:
                 c.rec.event("off_course", vehicle=a.name, sysid=a.spec.sysid, step=c.step, cell=a.cell, cleared=True)
             a.off_course, a.alarm = 0, None
