@@ -24,6 +24,12 @@ reaches every member at once and nothing is ever missing, so digests and request
 between members: they are still sent (the vehicle links and the recording get them) but not delivered
 (counted in `skipped`), which keeps the cost of a big swarm down to the deltas.
 
+Trust: each published message passes the mission's trust checks once, here, before any member gets
+it (`KnowledgeTrust.admit`, the function the UDP exchange calls for what it reads: members only, their
+system ids, positions no faster than a vehicle flies, detections inside the sender's footprint;
+swarmctl.knowledge.trust), with the member list and fov of the first member to join. Frames are signed
+when the members have a signing key (the outlet's copies: the recording and the vehicle links).
+
 Concurrency: none of its own; publish and poll from one thread (the controller's event loop).
 Deliveries wait in each receiver's inbox until it polls (KnowledgeExchange.poll), i.e. until the next
 decision round, as messages from the radio do.
@@ -37,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarmctl.knowledge.codec import KIND_NAMES, PT_DELTA, PT_DETECTION, KnowledgeCodec
+from swarmctl.knowledge.trust import KnowledgeTrust
 from swarmctl.world.channel import Channel
 
 if TYPE_CHECKING:
@@ -53,6 +60,7 @@ class KnowledgeBus:
         self.seed = int(seed)
         self.members: list[KnowledgeExchange] = []
         self._codec: KnowledgeCodec | None = None
+        self.trust = KnowledgeTrust()  # replaced by the first member's settings (join)
         self._rngs: dict[tuple[int, int], np.random.Generator] = {}
         self.published = 0  # frames published by members
         self.delivered = 0  # frames delivered on some link (sender -> receiver)
@@ -68,6 +76,7 @@ class KnowledgeBus:
         codec = member.codec
         if self._codec is None:
             self._codec = KnowledgeCodec(codec.mission_id, codec.width, codec.height)
+            self.trust = KnowledgeTrust(member.trust.members, member.trust.fov)
         elif (codec.mission_id, codec.width, codec.height) != (
             self._codec.mission_id,
             self._codec.width,
@@ -92,6 +101,8 @@ class KnowledgeBus:
         assert self._codec is not None, "publish before join"
         message = self._codec.decode(payload_type, payload)
         if message is None:  # never for a member's own encoding; counted in the bus codec's rejections
+            return 0
+        if not self.trust.admit(message, sender.system_id):  # counted in trust.rejected, delivered to no one
             return 0
         kind = KIND_NAMES[payload_type]
         reached = 0
@@ -131,11 +142,13 @@ class KnowledgeBus:
         raise RuntimeError(f"knowledge bus not quiet after {limit} rounds of polling")
 
     def counters(self) -> dict[str, Any]:
-        """published, delivered, lost and skipped frames, and the channel kind."""
+        """published, delivered, lost and skipped frames, the channel kind, and the messages the trust
+        checks dropped, by reason."""
         return dict(
             channel=self.channel.kind,
             published=self.published,
             delivered=self.delivered,
             lost=self.lost,
             skipped=self.skipped,
+            rejected={k: v for k, v in self.trust.rejected.items() if v},
         )

@@ -54,6 +54,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.knowledge.model import Delta, Detection, Report
+from swarmctl.signing import setup_signing
 
 log = logging.getLogger("swarmctl.knowledge")
 
@@ -76,6 +77,7 @@ MAX_VEHICLE_ID = 255
 MAX_CHUNKS = 255  # u8 chunk count
 COMPONENT_ID = mavlink2.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 _CELL_DTYPE = np.dtype([("cell", "<u2"), ("phi", "u1")])
+SIGNATURE_REFUSED = "Invalid signature"  # pymavlink's reason for a frame unsigned or wrongly signed
 
 
 def mission_id_from_name(name: str) -> int:
@@ -136,7 +138,15 @@ class KnowledgeCodec:
     `parse_datagram(bytes)`. Rejections are counted in `self.rejected`, accepted messages in
     `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
 
-    def __init__(self, mission_id: int, width: int, height: int, system_id: int = 1, component_id: int = COMPONENT_ID):
+    def __init__(
+        self,
+        mission_id: int,
+        width: int,
+        height: int,
+        system_id: int = 1,
+        component_id: int = COMPONENT_ID,
+        signing_key: bytes | None = None,
+    ):
         if not 0 <= mission_id <= 0xFFFF:
             raise ValueError(f"mission id {mission_id} must fit in 16 bits (0..65535)")
         if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE and width * height <= MAX_CELLS):
@@ -154,6 +164,10 @@ class KnowledgeCodec:
         self._tx = mavlink2.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
         self._rx = mavlink2.MAVLink(None)
         self._rx.robust_parsing = True
+        self.signed = signing_key is not None
+        if signing_key is not None:  # frames signed; only frames signed with the key are read
+            setup_signing(self._tx, signing_key)
+            setup_signing(self._rx, signing_key)
         self.last_repair = False  # the repair flag of the last accepted payload
 
     # ----- encoding ---------------------------------------------------------------------------------
@@ -392,7 +406,13 @@ class KnowledgeCodec:
 
     def parse_datagram(self, data: bytes) -> list[Message]:
         """Every knowledge message in one UDP datagram; anything else is counted, never raised."""
-        out: list[Message] = []
+        return [message for message, _sysid, _size in self.parse_frames(data)]
+
+    def parse_frames(self, data: bytes) -> list[tuple[Message, int, int]]:
+        """(message, the frame's system id, the frame's size in bytes) for every knowledge message in one
+        UDP datagram (`parse_datagram` without the frames' details). With a signing key only frames
+        signed with it are read (the others are rejected as `signature`)."""
+        out: list[tuple[Message, int, int]] = []
         try:
             msgs = self._rx.parse_buffer(bytes(data)) or []
         except Exception as exc:  # pymavlink can raise on malformed input even when robust
@@ -404,17 +424,21 @@ class KnowledgeCodec:
             self._rx.expected_length = mavlink2.HEADER_LEN_V1 + 2
         for m in msgs:
             if isinstance(m, mavlink2.MAVLink_bad_data):
-                self._reject("mavlink", str(getattr(m, "reason", "bad data")))
+                reason = str(getattr(m, "reason", "bad data"))
+                self._reject("signature" if reason == SIGNATURE_REFUSED else "mavlink", reason)
+                continue
+            if isinstance(m, mavlink2.MAVLink_unknown):
+                self.ignored["unknown"] += 1  # one key for every unknown id: the counter stays small
                 continue
             if m.get_type() != "TUNNEL":
-                self.ignored[m.get_type()] += 1
+                self.ignored[m.get_type()] += 1  # the dialect's message names: a bounded set
                 continue
             if m.payload_type not in PAYLOAD_TYPE_BLOCK:
                 self.ignored["TUNNEL other payload_type"] += 1
                 continue
             decoded = self.decode(m.payload_type, bytes(m.payload), m.payload_length)
             if decoded is not None:
-                out.append(decoded)
+                out.append((decoded, m.get_srcSystem(), len(m.get_msgbuf())))
         return out
 
 

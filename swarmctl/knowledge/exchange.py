@@ -16,7 +16,9 @@ Protocol (payload layouts in swarmctl/knowledge/codec.py, docs/knowledge.md):
 - every step the vehicle broadcasts a DELTA with the cells it explored itself since the last one
   (no relaying, like the simulator) and its position; a delta that does not fit is chunked;
 - a vehicle that finds targets broadcasts a DETECTION at once; every `digest_every` steps it
-  broadcasts its DIGEST (explored bitmap) and, if it knows any targets, a DETECTION listing them;
+  broadcasts its DIGEST (explored bitmap) and the targets it found itself again, each DETECTION with
+  the step and cell it saw them from (a vehicle vouches only for what was in its own footprint, which
+  is what receivers check: swarmctl.knowledge.trust);
 - a vehicle that receives a digest showing cells it lacks sends a REQUEST (bitmap of the missing
   cells; at most one per digest chunk per `digest_every` steps) to the digest's sender, which
   answers with repair DELTAs of those cells (anything it knows, its own or received), broadcast so
@@ -26,6 +28,11 @@ Protocol (payload layouts in swarmctl/knowledge/codec.py, docs/knowledge.md):
   still be in flight, so they are not pushed), which shortens convergence under loss
   (docs/knowledge.md). Steps are the swarm's common mission step.
 Every message carries the sender's position; positions merge newest-step-wins.
+
+Trust (docs/security.md): with `signing_key` every frame is MAVLink 2 signed and only frames signed
+with the key are read; every message passes `KnowledgeTrust.admit` (mission members only, with their
+system ids; positions no faster than a vehicle flies; detections inside the sender's footprint) before
+it is merged, and answers to digests and requests are bounded per peer (swarmctl.knowledge.budget).
 
 Concurrency: none of its own. The owner calls `poll` (from its loop, or, on UDP, when `fileno()` is
 readable, e.g. asyncio's loop.add_reader); sends happen in the caller's thread. Messages from this
@@ -38,14 +45,16 @@ import logging
 import select
 import socket
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarmctl.errors import InputError
+from swarmctl.knowledge.budget import AnswerBudget
 from swarmctl.knowledge.codec import BitmapChunk, KnowledgeCodec, chunk_mask
 from swarmctl.knowledge.model import Delta, Detection, Knowledge
+from swarmctl.knowledge.trust import KnowledgeTrust
 
 if TYPE_CHECKING:
     from swarmctl.knowledge.bus import KnowledgeBus
@@ -60,7 +69,9 @@ RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 class KnowledgeExchange:
     """Knowledge + where its messages go: a UDP socket on `host` that sends to `peer` (a radio or a
     MAVLink router), or a KnowledgeBus with an optional `outlet` (a callable taking each frame's bytes,
-    e.g. a writer onto the vehicle's MAVLink link)."""
+    e.g. a writer onto the vehicle's MAVLink link). `members` (vehicle index -> system id of every
+    vehicle of the mission) and `fov` (sensor radius, cells) feed the trust checks; `signing_key` (32
+    bytes) signs every frame and reads only frames signed with it."""
 
     def __init__(
         self,
@@ -76,6 +87,9 @@ class KnowledgeExchange:
         push_fanout: int = 2,
         host: str = "127.0.0.1",
         port: int = 0,
+        members: Mapping[int, int] | None = None,
+        fov: float | None = None,
+        signing_key: bytes | None = None,
     ):
         if (peer is None) == (bus is None):
             raise ValueError("a KnowledgeExchange sends either to a UDP peer or on a bus: give one of them")
@@ -91,7 +105,12 @@ class KnowledgeExchange:
         self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
         self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
         self.system_id = knowledge.vehicle_id + 1 if system_id is None else int(system_id)
-        self.codec = KnowledgeCodec(mission_id, knowledge.width, knowledge.height, system_id=self.system_id)
+        self.codec = KnowledgeCodec(
+            mission_id, knowledge.width, knowledge.height, system_id=self.system_id, signing_key=signing_key
+        )
+        self.trust = KnowledgeTrust(members, fov)
+        self.budget = AnswerBudget(signed=signing_key is not None)
+        self._found: dict[tuple[int, int], tuple[int, tuple[int, int] | None]] = {}  # own finds: (step, seen from)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
         self._inbox: deque[tuple[object, str, int]] = deque()  # bus deliveries: (message, kind, frame bytes)
         self.sock = None
@@ -130,10 +149,14 @@ class KnowledgeExchange:
         self.close()
 
     # ----- sending ----------------------------------------------------------------------------------
-    def _send(self, message, repair: bool = False) -> None:
-        """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus."""
+    def _send(self, message, repair: bool = False, answering: int | None = None) -> None:
+        """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus. An
+        answer to vehicle `answering`'s digest or request goes out only as far as its budget allows."""
         for payload_type, payload in self.codec.encode(message, repair):
             frame = self.codec.frame(payload_type, payload)
+            if answering is not None and not self.budget.spend(answering, len(frame)):
+                self.stats["withheld"] += 1  # the rest of the answer waits for the next period
+                break
             if self.bus is not None:
                 if self.outlet is not None and self.outlet(frame):
                     self.stats["link_packets"] += 1  # on the vehicle's own MAVLink link
@@ -150,6 +173,9 @@ class KnowledgeExchange:
                     continue
             self.stats["sent_packets"] += 1
             self.stats["sent_bytes"] += len(frame)
+            if answering is not None:
+                self.stats["answer_packets"] += 1
+                self.stats["answer_bytes"] += len(frame)
 
     def step(
         self,
@@ -171,17 +197,22 @@ class KnowledgeExchange:
         if targets is not None and len(targets):
             self.report_targets(targets, step)
 
-    def report_targets(self, cells, step: int) -> None:
-        """Record target cells found now and broadcast a DETECTION at once (repeated every digest)."""
+    def report_targets(self, cells, step: int, seen_from: tuple[int, int] | None = None) -> None:
+        """Record target cells this vehicle saw at `step` from `seen_from` (default: its own cell now)
+        and broadcast a DETECTION at once, with that step and cell; repeated with every digest."""
         self.knowledge.add_targets(cells, step)
         pos = self.knowledge.own_position
-        cell, on_target = (pos.cell, pos.on_target) if pos else (None, False)
+        cell = seen_from if seen_from is not None else (pos.cell if pos else None)
+        on_target = bool(pos and pos.on_target and pos.cell == cell and pos.step == step)
+        for t in np.asarray(cells, dtype=np.int64).reshape(-1, 2):
+            self._found.setdefault((int(t[0]), int(t[1])), (int(step), cell))
         self._send(Detection(self.vehicle_id, step, cell, on_target, cells))
 
     def publish(self, step: int) -> None:
         """Broadcast the delta; on this vehicle's digest steps also the digest and the known targets.
         Digests are staggered: vehicle v sends them when (step + v) % digest_every == 0."""
         self._now = max(self._now, int(step))
+        self.budget.period(self._now // max(self.digest_every, 1))
         self._send(self.knowledge.take_delta())
         self.stats["deltas"] += 1
         if self.digest_every > 0 and step > 0 and (step + self.vehicle_id) % self.digest_every == 0:
@@ -193,15 +224,20 @@ class KnowledgeExchange:
         self._learned_at[fresh] = step
 
     def publish_digest(self) -> None:
-        """Broadcast the explored-cell digest now (all chunks) and, if any, the known targets."""
+        """Broadcast the explored-cell digest now (all chunks) and, if any, the targets this vehicle
+        found, each DETECTION with the step and cell they were seen from (targets learnt from others
+        are theirs to repeat: a receiver takes a target only from the footprint of its finder)."""
         kn = self.knowledge
         pos = kn.own_position
         step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
         for chunk in self.codec.digest(self.vehicle_id, step, cell, on_target, kn.explored):
             self._send(chunk)
         self.stats["digests"] += 1
-        if kn.targets:
-            self._send(Detection(self.vehicle_id, step, cell, on_target, np.array(sorted(kn.targets))))
+        seen: dict[tuple[int, tuple[int, int] | None], list[tuple[int, int]]] = {}
+        for target, where in sorted(self._found.items()):
+            seen.setdefault(where, []).append(target)
+        for (found_at, seen_from), targets in seen.items():
+            self._send(Detection(self.vehicle_id, found_at, seen_from, False, np.array(targets)))
 
     # ----- receiving --------------------------------------------------------------------------------
     def deliver(self, message, kind: str, size: int) -> None:
@@ -231,8 +267,11 @@ class KnowledgeExchange:
             handled += 1
             self.stats["received_packets"] += 1
             self.stats["received_bytes"] += len(data)
-            for message in self.codec.parse_datagram(data):
-                self._handle(message)
+            for message, sysid, size in self.codec.parse_frames(data):
+                if message.sender == self.vehicle_id:
+                    self.stats["own_echo"] += 1
+                elif self.trust.admit(message, sysid):
+                    self._handle(message, size)
 
     def _poll_bus(self) -> int:
         handled = 0
@@ -242,39 +281,44 @@ class KnowledgeExchange:
             self.stats["received_packets"] += 1
             self.stats["received_bytes"] += size
             self.codec.accepted[kind] += 1  # what the codec would have counted had it decoded the frame
-            self._handle(message)
+            self._handle(message, size)
         return handled
 
-    def _handle(self, message) -> None:
+    def _handle(self, message, size: int) -> None:
+        """Merge an admitted message (`size`: its frame's bytes, credited to its sender's answer budget)
+        and answer it when it is a digest or a request to us."""
         kn = self.knowledge
         if message.sender == self.vehicle_id:
             self.stats["own_echo"] += 1
             return
+        sender = message.sender
+        self.budget.received(sender, size)
         if isinstance(message, (Delta, Detection)):
             kn.merge(message)
             return
         assert isinstance(message, BitmapChunk)
-        kn.merge_position(message.sender, message.position)
+        kn.merge_position(sender, message.position)
         theirs = chunk_mask(message, kn.width, kn.height)
         if message.target is None:  # a digest: ask for what they have and we lack ...
             missing = theirs & ~kn.explored
             last = self._requested_at.get(message.index)
             if missing.any() and (last is None or self._now - last >= max(self.digest_every, 1)):
                 self._requested_at[message.index] = self._now
-                self._request(message.sender, missing, message.index)
-            if self.push and self._pushes_to(message.sender):  # ... and offer what they lack and we knew
+                self._request(sender, missing, message.index)
+            # ... and offer what they lack and we knew (once per chunk and period, however many digests)
+            if self.push and self._pushes_to(sender) and self.budget.first("push", sender, message.index):
                 self._note_learned(self._now)
                 region = chunk_mask(
                     BitmapChunk(0, 0, None, index=message.index, bits=np.ones_like(message.bits)), kn.width, kn.height
                 )
                 answer = kn.cells_delta(region & ~theirs & (self._learned_at < message.step))
                 if len(answer):
-                    self._send(answer, repair=True)
+                    self._send(answer, repair=True, answering=sender)
                     self.stats["pushes"] += 1
-        elif message.target == self.vehicle_id:  # a request to us: send what we know of it
-            answer = kn.cells_delta(theirs)
+        elif message.target == self.vehicle_id and self.budget.first("repair", sender, message.index):
+            answer = kn.cells_delta(theirs)  # a request to us: send what we know of it
             if len(answer):
-                self._send(answer, repair=True)
+                self._send(answer, repair=True, answering=sender)
                 self.stats["repairs"] += 1
 
     def _pushes_to(self, sender: int) -> bool:
@@ -290,15 +334,29 @@ class KnowledgeExchange:
         pos = kn.own_position
         step, cell, on_target = (pos.step, pos.cell, pos.on_target) if pos else (0, None, False)
         chunk = self.codec.digest(self.vehicle_id, step, cell, on_target, missing, target=target)[index]
-        self._send(chunk)
+        self._send(chunk, answering=target)
         self.stats["requests"] += 1
 
     # ----- counters ---------------------------------------------------------------------------------
+    def merged(self) -> int:
+        """Knowledge messages taken so far: decoded and admitted by the trust checks."""
+        return sum(self.codec.accepted.values()) - sum(self.trust.rejected.values())
+
+    def rejections(self) -> dict[str, int]:
+        """Messages dropped so far, by reason: the codec's (bad bytes, `signature`) and the trust
+        checks' (`member`, `sysid`, `speed`, `footprint`)."""
+        out = Counter(self.codec.rejected)
+        out.update(self.trust.rejected)
+        return dict(out)
+
     def counters(self) -> dict[str, int]:
-        """sent/received packets and bytes, deltas, digests, requests, repairs, accepted per kind,
-        rejected per reason (prefixed 'rejected_')."""
+        """sent/received packets and bytes, deltas, digests, requests, repairs, pushes, answers to
+        digests and requests sent (`answer_packets`, `answer_bytes`) and withheld by the budget
+        (`withheld`), accepted per kind (decoded), rejected per reason (prefixed 'rejected_': the
+        codec's and the trust checks'), and `rejected` in all."""
         out = dict(self.stats)
         out.update({f"accepted_{k}": v for k, v in self.codec.accepted.items()})
-        out.update({f"rejected_{k}": v for k, v in self.codec.rejected.items()})
-        out["rejected"] = sum(self.codec.rejected.values())
+        rejected = self.rejections()
+        out.update({f"rejected_{k}": v for k, v in rejected.items()})
+        out["rejected"] = sum(rejected.values())
         return out

@@ -26,7 +26,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
-from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes, valid_frame
+from swarmctl.signing import setup_signing
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,7 @@ class LinkStats:
     sent: int = 0
     bad_data: int = 0
     console_bytes: int = 0  # an autopilot's boot text on a stream link (SITL's SERIAL0), not bad data
+    unknown: int = 0  # frames of message ids the dialect does not have (pymavlink checks neither CRC nor signature)
 
 
 CONSOLE_KEEP = 4096  # bytes of console text kept on the link (`MavlinkLink.console`)
@@ -129,12 +131,8 @@ class MavlinkLink:
         self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id, srcComponent=self.component_id)
         self.mav.robust_parsing = True
         if self.signing_key is not None:
-            s = self.mav.signing
-            s.secret_key, s.sign_outgoing, s.link_id = self.signing_key, True, 0
-            s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
-            s.allow_unsigned_callback = (
-                (lambda _mav, _mid: True) if self.accept_unsigned else (lambda _mav, msg_id: msg_id in _UNSIGNED_OK)
-            )
+            unsigned = (lambda _mav, _mid: True) if self.accept_unsigned else _UNSIGNED_OK
+            setup_signing(self.mav, self.signing_key, accept_unsigned=unsigned)
         self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
         self._thread.start()
         self._tasks = [asyncio.create_task(self._heartbeat_loop()), asyncio.create_task(self._watchdog_loop())]
@@ -181,6 +179,8 @@ class MavlinkLink:
                 continue
             with self._lock:
                 msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+            if any(valid_frame(m) for m in msgs):
+                self._transport.accept_source()  # udpin: answer this address from now on
             if msgs:
                 try:
                     self._loop.call_soon_threadsafe(self._dispatch, msgs)
@@ -190,6 +190,9 @@ class MavlinkLink:
     def _dispatch(self, msgs: list) -> None:
         now = time.monotonic()
         for msg in msgs:
+            if isinstance(msg, MAV.MAVLink_unknown):
+                self.stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
+                continue
             mtype = msg.get_type()
             if mtype == "BAD_DATA" and self._console_text(msg):
                 continue

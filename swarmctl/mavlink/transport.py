@@ -1,8 +1,12 @@
 """Byte transports for MAVLink: UDP in/out, TCP client, serial. Blocking, used from one reader thread.
 
-`udpin` listens and answers every peer it has heard from (like a radio channel shared by several
+`udpin` listens and answers the peers it has heard from (like a radio channel shared by several
 vehicles): vehicles on one link tell messages apart by target_system, so nothing depends on which
-socket address a vehicle used. `udpout` sends to one address and reads answers on its own port.
+socket address a vehicle used. An address is answered only once a datagram from it held a valid
+MAVLink frame (the owner says so with `accept_source()` after parsing: CRC and, with a key, the
+signature checked), and at most MAX_SOURCES addresses are answered: the ones heard from most
+recently, so bytes from spoofed ports neither make each write go to thousands of addresses nor push
+out the vehicles. `udpout` sends to one address and reads answers on its own port.
 """
 
 from __future__ import annotations
@@ -10,12 +14,15 @@ from __future__ import annotations
 import select
 import socket
 import threading
+from collections import OrderedDict
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav_module
 
 from swarmctl.errors import InputError
 from swarmctl.mavlink.codec import Endpoint, parse_connection
+
+MAX_SOURCES = 32  # udpin: the addresses answered at once (the most recently heard with a valid frame)
 
 
 class Transport:
@@ -24,6 +31,9 @@ class Transport:
     def read(self, timeout: float) -> bytes:  # pragma: no cover - interface
         """Bytes received within timeout seconds (b'' if none)."""
         raise NotImplementedError
+
+    def accept_source(self) -> None:
+        """The bytes last read held a valid MAVLink frame: answer where they came from (udpin)."""
 
     def write(self, data: bytes) -> None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -40,6 +50,9 @@ class UdpTransport(Transport):
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.peers: list[tuple[str, int]] = []
+        self._sources: OrderedDict[tuple[str, int], None] = OrderedDict()  # udpin: answered, oldest first
+        self.last_source: tuple[str, int] | None = None
+        self.evicted = 0  # udpin: addresses no longer answered because MAX_SOURCES newer ones were heard
         self._lock = threading.Lock()
         try:
             if self.listen:
@@ -63,10 +76,22 @@ class UdpTransport(Transport):
             data, addr = self.sock.recvfrom(65535)
         except OSError:
             return b""
-        if self.listen and addr not in self.peers:
-            with self._lock:
-                self.peers.append(addr)
+        self.last_source = addr
         return data
+
+    def accept_source(self) -> None:
+        addr = self.last_source
+        if not self.listen or addr is None:
+            return
+        with self._lock:
+            if addr in self._sources:
+                self._sources.move_to_end(addr)
+                return
+            self._sources[addr] = None
+            while len(self._sources) > MAX_SOURCES:
+                self._sources.popitem(last=False)
+                self.evicted += 1
+            self.peers = list(self._sources)
 
     def write(self, data: bytes) -> None:
         with self._lock:
@@ -157,6 +182,12 @@ def parse_bytes(mav: Any, data: bytes, datagram: bool) -> list:
         _reset_parser(mav)
         msgs.append(_bad_data(mav, bytearray(leftover), "truncated packet at the end of a datagram"))
     return msgs
+
+
+def valid_frame(msg: Any) -> bool:
+    """A parsed message that is a whole frame of the dialect (not bad data, not an unknown message id,
+    which pymavlink hands over without checking its CRC or signature)."""
+    return msg.get_type() != "BAD_DATA" and not isinstance(msg, mav_module.MAVLink_unknown)
 
 
 def _reset_parser(mav: Any) -> None:

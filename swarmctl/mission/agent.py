@@ -8,7 +8,8 @@ carries out the side effects (cancel a rejoin, send the vehicle home) and the sw
 
     new -> connect -> preflight -> takeoff -> search <-> hover
     search / hover / rejoin -> lost -> rejoin -> search        (link loss and return)
-    search / hover -> override                                 (a pilot's mode)
+    search / hover -> override                                 (a pilot's mode, or not commanded:
+                                                                swarmctl.mission.watch)
     search -> low battery                                      (sent home)
     any of them -> failed; any but ended -> ended              (the end action was given)
 """
@@ -86,7 +87,7 @@ class Agent:
         self.index, self.spec, self.vehicle = index, spec, vehicle
         self.exchange, self.feed = exchange, feed
         self.detector = detector  # "mavlink" or a local socket (Endpoint); None: sensing from position only
-        self.visited: set[tuple[int, int]] = set()  # cells the vehicle reached (its reports count there)
+        self.visited: dict[tuple[int, int], int] = {}  # cells the vehicle reached -> the step it last did
         self.sensor_dropped = 0  # report entries outside the footprints of the cells it reached
         self.unexpected_reports = False  # reports came although the mission gives it no detector
         self.knowledge: Knowledge = exchange.knowledge
@@ -102,6 +103,12 @@ class Agent:
         self.notes: dict[str, float] = {}  # preflight note -> when it was last shown (time.monotonic())
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
+        self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
+        self.watch_from: tuple[int, int] | None = None  # the cell held at the last off-course check
+        self.watch_pos: tuple[float, float] | None = None  # lat, lon at the last check it passed
+        self.off_course = 0  # rounds in a row the vehicle was off course
+        self.climbed = False  # at the mission altitude since it was first seen commanded
+        self.alarm: str | None = None  # what the live table shows (off course)
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
 
@@ -131,7 +138,7 @@ class Agent:
         """The transition the vehicle's own reports call for, with what to record; None: none.
 
         Link lost (now, or briefly since the agent last looked) -> lost; back -> rejoin; a pilot's mode
-        for the autopilot's debounce time -> override; a battery below `low_battery` % while
+        for the autopilot's debounce time -> override (reason "pilot"); a battery below `low_battery` % while
         searching -> low battery."""
         lost = self.vehicle.lost
         if self.state in (State.SEARCH, State.HOVER, State.REJOIN) and (lost or self.saw_loss):
@@ -140,7 +147,8 @@ class Agent:
         if self.state is State.LOST and not lost:
             return State.REJOIN, {}
         if self.state in (State.SEARCH, State.HOVER) and self.pilot_has_it(time.monotonic() if now is None else now):
-            return State.OVERRIDE, {"mode": self.vehicle.mode}
+            self.override_reason = "pilot"
+            return State.OVERRIDE, {"mode": self.vehicle.mode, "reason": "pilot"}
         battery = self.battery()
         if self.state is State.SEARCH and battery is not None and battery < low_battery:
             return State.LOW_BATTERY, {"battery": battery}
@@ -179,7 +187,7 @@ class Agent:
         """Nothing to do each round: the vehicle's odometer follows its telemetry (see `distance`)."""
 
     def received_since(self) -> int:
-        """Knowledge messages accepted since the last call."""
-        total = sum(self.exchange.codec.accepted.values())
+        """Knowledge messages accepted (decoded and admitted by the trust checks) since the last call."""
+        total = self.exchange.merged()
         new, self._accepted = total - self._accepted, total
         return new

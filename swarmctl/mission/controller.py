@@ -36,9 +36,19 @@ from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 from swarmctl.mission.rounds import search
 from swarmctl.mission.sharing import link_outlet, make_bus, open_exchange
+from swarmctl.signing import signing_counts
 from swarmctl.world.guard import SafetyGuard
 
 log = logging.getLogger(__name__)
+
+
+def link_signing(link: Any) -> dict:
+    """A signing link's counts (frames refused unsigned or wrongly signed, bad signatures); none without a key."""
+    mav = getattr(link, "mav", None)
+    if getattr(link, "signing_key", None) is None or mav is None:
+        return {}
+    counts = signing_counts(mav)
+    return dict(signing_refused=counts["refused"], signing_bad=counts["bad"])
 
 
 class Controller:
@@ -79,6 +89,8 @@ class Controller:
         self._stop = asyncio.Event()
         self.takeoff_slots = asyncio.Semaphore(plan.spec.flight.takeoff_at_once)
         self.tasks: set[asyncio.Task] = set()  # every task started with spawn(), until it is done
+        # MAVLink sequence gaps, kept for the mission's system ids only (bounded: not one entry per id heard)
+        self._sysids = {v.sysid for v in plan.spec.vehicles}
         self._link_seq: dict[tuple[int, int], int] = {}
         self.lost_packets: Counter[int] = Counter()
 
@@ -155,8 +167,11 @@ class Controller:
             link.add_listener(self.gcs.forward)
 
     def _count_gaps(self, msg: Any) -> None:
-        """MAVLink sequence gaps per sender: packets lost on the way to us."""
+        """MAVLink sequence gaps per sender (the mission's vehicles: their system ids, component 1 or
+        whatever they send from, at most 256 entries each): packets lost on the way to us."""
         key = (msg.get_srcSystem(), msg.get_srcComponent())
+        if key[0] not in self._sysids:
+            return
         seq = msg.get_seq()
         last = self._link_seq.get(key)
         if last is not None:
@@ -259,7 +274,8 @@ class Controller:
             self.rec.event("end_action", vehicle=a.name, action="none: link lost")
             return
         if a.state is State.OVERRIDE:
-            a.end_state = f"pilot ({a.vehicle.mode})"
+            who = "pilot" if a.override_reason == "pilot" else f"taken over, {a.override_reason}"
+            a.end_state = f"{who} ({a.vehicle.mode})"
             return
         action = plan.spec.mission.end_action
         if action == "hover" and a.state is not State.HOVER:
@@ -343,9 +359,16 @@ class Controller:
                     knowledge_sent=c.get("sent_packets", 0),
                     knowledge_received=c.get("received_packets", 0),
                     knowledge_rejected=c.get("rejected", 0),
+                    knowledge_rejections=a.exchange.rejections(),
+                    knowledge_withheld=c.get("withheld", 0),
                     mavlink_lost=self.lost_packets.get(a.spec.sysid, 0),
                 )
             )
+        rejections: Counter[str] = Counter()
+        for v in vehicles:
+            rejections.update(v["knowledge_rejections"])
+        if self.bus is not None:
+            rejections.update(self.bus.trust.rejected)
         links = [
             dict(
                 connection=str(k),
@@ -353,6 +376,8 @@ class Controller:
                 received=v.stats.received,
                 bad_data=v.stats.bad_data,
                 console_bytes=v.stats.console_bytes,
+                unknown=v.stats.unknown,
+                **link_signing(v),
             )
             for k, v in self.links.items()
         ]
@@ -377,7 +402,8 @@ class Controller:
                 mavlink_lost=sum(self.lost_packets.values()),
                 knowledge_sent=sum(v["knowledge_sent"] for v in vehicles),
                 knowledge_received=sum(v["knowledge_received"] for v in vehicles),
-                knowledge_rejected=sum(v["knowledge_rejected"] for v in vehicles),
+                knowledge_rejected=sum(rejections.values()),
+                knowledge_rejections=dict(sorted(rejections.items())),
             ),
             links=links,
             overhead_ms=self.overhead_ms(),

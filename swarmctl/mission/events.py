@@ -139,6 +139,18 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             Field("cell", "cell", "cells", "the vehicle's cell then (null: none yet / none held)", nullable=True),
             Field("last_cell", "cell", "cells", "lost: the last cell it held", required=False, nullable=True),
             Field("mode", "str", "-", "override: the flight mode the pilot chose", required=False),
+            Field(
+                "reason",
+                "str",
+                "-",
+                "override: why (`pilot`: a pilot's mode; `not commanded`: off course for more than "
+                "`[flight] off_course_rounds` rounds)",
+                required=False,
+                values=("pilot", "not commanded"),
+            ),
+            Field("off_m", "number", "m", "off course: metres from the path of its last step", required=False),
+            Field("below_m", "number", "m", "off course: metres below the mission altitude", required=False),
+            Field("rounds", "int", "rounds", "off course: rounds in a row off course", required=False),
             Field("battery", "int", "%", "low battery: the charge left", required=False),
             Field("error", "str", "-", "failed: why", required=False),
             Field("rejoined", "bool", "-", "search: true when the vehicle came back after a link loss", required=False),
@@ -204,6 +216,22 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             Field("cell", "cell", "cells", "where the vehicle was"),
             Field("proposed", "xy", "cells", "the cell the policy wanted (off the grid when the move left it)"),
             Field("reason", "str", "-", "why (outside, blocked, contested ...)"),
+        ),
+    ),
+    "off_course": (
+        "events.jsonl",
+        "a vehicle is not where it was sent (`[flight] off_course_m` from the path of its last step, or "
+        "`below_altitude_m` below the mission altitude) at the start of a round: its setpoint is sent again "
+        "(swarmctl.mission.watch); `cleared`: it is back on course",
+        (
+            _VEHICLE,
+            _SYSID,
+            _STEP,
+            Field("cell", "cell", "cells", "the cell it was sent to"),
+            Field("off_m", "number", "m", "metres from the path of its last step", required=False),
+            Field("below_m", "number", "m", "metres below the mission altitude (negative: above)", required=False),
+            Field("rounds", "int", "rounds", "rounds in a row off course, this one included", required=False),
+            Field("cleared", "bool", "-", "true: back on course", required=False),
         ),
     ),
     "step_timeout": (

@@ -18,6 +18,7 @@ from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.sensing import sense
+from swarmctl.mission.watch import off_course
 
 if TYPE_CHECKING:
     from swarmctl.mission.controller import Controller
@@ -57,7 +58,8 @@ async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | N
     """Send the position target for the cell centre at the mission altitude and wait until it is
     reached, for `timeout` seconds (None: derived from the vehicle's speeds and the distance to the
     cell, timeouts.move). False only when that time ran out: a wait cut short because the link was
-    lost or the mission stopped returns True at once (it is not a step timeout)."""
+    lost, the mission stopped or the vehicle went off course (swarmctl.mission.watch flags it at the
+    next round) returns True at once (it is not a step timeout)."""
     if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
         raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
     lat, lon = c.grid.cell_to_latlon(*cell)
@@ -67,7 +69,7 @@ async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | N
     task = asyncio.ensure_future(a.vehicle.wait_reached(c.plan.spec.flight.reach_tolerance, timeout))
     try:
         while not task.done():
-            if a.vehicle.lost or c.stopping:
+            if a.vehicle.lost or c.stopping or off_course(c, a, cell):
                 return True
             await asyncio.wait({task}, timeout=0.1)
         return task.exception() is None
@@ -79,14 +81,16 @@ async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | N
 
 
 async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
-    """Sense (the footprint round the cell reached, when the vehicle arrived somewhere new; with a
-    detector, after waiting for its report there) and publish; returns the targets it saw."""
+    """Sense (the footprint round the cell reached, when the vehicle arrived somewhere new and is not off
+    course; with a detector, after waiting for its report there) and publish; returns the targets it saw."""
     kn, ex = a.knowledge, a.exchange
     if a.cell is None:
         return []
     on_target = a.state is State.HOVER
+    if moved and off_course(c, a, a.cell):
+        moved = False  # steered away before it got there: nothing sensed there (swarmctl.mission.watch)
     if moved:
-        a.visited.add(a.cell)
+        a.visited[a.cell] = c.step
         if a.detector is not None:
             report = await a.feed.wait_report(
                 a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
@@ -107,15 +111,13 @@ async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) ->
         c.rec.event("report_dropped", vehicle=a.name, step=c.step, dropped=sensed.dropped)
     found = [(int(x), int(y)) for x, y in sensed.targets]
     fresh = [t for t in found if t not in kn.targets]
-    ex.step(
-        c.step,
-        a.cell,
-        on_target,
-        sensed.cells,
-        sensed.phi,
-        sensed.obstacle,
-        targets=np.array(fresh, dtype=np.int64).reshape(-1, 2) if fresh else None,
-    )
+    ex.step(c.step, a.cell, on_target, sensed.cells, sensed.phi, sensed.obstacle)
+    seen: dict[tuple[int, int], list[tuple[int, int]]] = {}
+    for t, origin in zip(found, sensed.seen_from.tolist()):
+        if t in fresh:
+            seen.setdefault((int(origin[0]), int(origin[1])), []).append(t)
+    for origin, targets in seen.items():  # with the step and cell they were seen from (the others check it)
+        ex.report_targets(np.array(targets, dtype=np.int64), a.visited.get(origin, c.step), seen_from=origin)
     if fresh:
         latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
         c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)

@@ -3,7 +3,9 @@
 Each round, for the agents of this process that are searching:
 1. merge what arrived on the knowledge channel, track the distance flown;
 2. state updates: each agent's own transitions (link, pilot, battery: Agent.next_state), and an
-   agent on a known target cell that no other vehicle hovers over starts hovering there;
+   agent on a known target cell that no other vehicle hovers over starts hovering there; then every
+   commanded vehicle's position against its setpoint (off course: flagged, re-commanded, and taken
+   over when it persists: swarmctl.mission.watch);
 3. the policy chooses a move for every searching agent at once (one batch), and the recording keeps
    the beliefs it chose on (inputs.jsonl, for `swarmctl replay --verify`);
 4. the safety guard checks the moves against the grid, the blocked cells and the cells every other
@@ -29,6 +31,7 @@ import numpy as np
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.flight import fly, held, sense_and_share
 from swarmctl.mission.launch import rejoin
+from swarmctl.mission.watch import watch
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 if TYPE_CHECKING:
@@ -45,6 +48,7 @@ async def search(c: Controller) -> None:
             a.exchange.poll(0.0)
             a.track()
         update_states(c)
+        await watch(c)  # what was not commanded (swarmctl.mission.watch)
         outcome = ended(c)
         if outcome is not None:
             c.outcome = outcome

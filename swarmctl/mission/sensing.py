@@ -21,7 +21,7 @@ on trust:
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,14 +36,16 @@ def _none() -> np.ndarray:
 
 @dataclass
 class Sensed:
-    """What one agent senses in one round: cells with their phi and obstacle flag, target cells, and
-    how many report entries (cells and targets) were dropped."""
+    """What one agent senses in one round: cells with their phi and obstacle flag, target cells (each
+    with the reached cell whose footprint it was reported in, `seen_from`), and how many report
+    entries (cells and targets) were dropped."""
 
     cells: np.ndarray = field(default_factory=_none)  # (N, 2), may repeat a cell (merges take max / or)
     phi: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float32))
     obstacle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     targets: np.ndarray = field(default_factory=_none)  # (K, 2) distinct
     dropped: int = 0
+    seen_from: np.ndarray = field(default_factory=_none)  # (K, 2): the cell each target was seen from
 
 
 def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
@@ -52,13 +54,13 @@ def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
 
 
 def sense(
-    grid: Any, fov: float, reached: tuple[int, int] | None, reports: Iterable[Any], visited: set[tuple[int, int]]
+    grid: Any, fov: float, reached: tuple[int, int] | None, reports: Iterable[Any], visited: Collection[tuple[int, int]]
 ) -> Sensed:
     """The footprint round `reached` (None: the vehicle did not arrive anywhere new this round) with the
     grid's obstacles and phi 0, plus what `reports` (SensorReports) say within the footprints of cells
     in `visited` (the cells the vehicle reached, `reached` included)."""
     h = grid.height
-    cells, phi, obstacle, targets = [], [], [], []
+    cells, phi, obstacle, targets, origins = [], [], [], [], []
     dropped = 0
     if reached is not None:
         c = footprint(reached, grid, fov)
@@ -81,7 +83,14 @@ def sense(
         blocked = np.asarray(grid.blocked, dtype=bool)[rc[keep, 0], rc[keep, 1]]
         obstacle.append(np.asarray(r.obstacle, dtype=bool).reshape(-1)[keep] | blocked)
         targets.append(rt[keep_t])
+        origins.append(np.tile(np.asarray(r.cell, dtype=np.int64), (int(keep_t.sum()), 1)))
     if not cells:
         return Sensed(dropped=dropped)
-    found = np.unique(np.concatenate(targets), axis=0) if targets else _none()
-    return Sensed(np.concatenate(cells), np.concatenate(phi), np.concatenate(obstacle), found.reshape(-1, 2), dropped)
+    found, seen_from = _none(), _none()
+    if targets:
+        every, where = np.concatenate(targets).reshape(-1, 2), np.concatenate(origins).reshape(-1, 2)
+        found, first = np.unique(every, axis=0, return_index=True)
+        seen_from = where[first]
+    return Sensed(
+        np.concatenate(cells), np.concatenate(phi), np.concatenate(obstacle), found.reshape(-1, 2), dropped, seen_from
+    )

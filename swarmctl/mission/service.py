@@ -63,9 +63,10 @@ def describe(plan: MissionPlan) -> list[str]:
 
 
 class LiveView:
-    """A table per vehicle (state, cell, battery, link, targets, and in preflight what the vehicle says)
-    redrawn each step on a terminal, and a progress line; `live=False` keeps only the progress lines
-    and a line per preflight note, `quiet=True` prints nothing."""
+    """A table per vehicle (state, cell, battery, link, targets, and in preflight what the vehicle says;
+    an ALARM when it is off course, swarmctl.mission.watch) redrawn each step on a terminal, and a
+    progress line; `live=False` keeps only the progress lines and a line per preflight note and alarm,
+    `quiet=True` prints nothing."""
 
     def __init__(self, stream: TextIO | None = None, live: bool = True, quiet: bool = False, every: float = 2.0):
         stream = stream if stream is not None else sys.stderr  # looked up now: sys.stderr may be replaced
@@ -74,6 +75,7 @@ class LiveView:
         self._lines = 0
         self._last = 0.0
         self._notes: dict[str, str | None] = {}  # vehicle -> the preflight note last printed
+        self._alarms: dict[str, str | None] = {}  # vehicle -> the alarm last printed
 
     def __call__(self, c: Controller) -> None:
         if self.quiet:
@@ -90,6 +92,10 @@ class LiveView:
                 if a.status is not None and self._notes.get(a.name) != a.status:
                     self._notes[a.name] = a.status
                     print(f"{a.name}: {a.status}", file=self.stream, flush=True)
+                if self._alarms.get(a.name) != a.alarm:
+                    self._alarms[a.name] = a.alarm
+                    if a.alarm is not None:
+                        print(f"{a.name}: ALARM {a.alarm}", file=self.stream, flush=True)
             if c.search_started and now - self._last >= self.every or c.outcome:
                 self._last = now
                 print(progress, file=self.stream, flush=True)
@@ -99,6 +105,7 @@ class LiveView:
             cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
             battery = a.battery()
             says = f"  {a.status[:60]}" if a.state == State.PREFLIGHT and a.status else ""
+            says += f"  ALARM {a.alarm}" if a.alarm else ""
             rows.append(
                 f"{a.name:<10} {a.state:<12} {cell:<9} {('-' if battery is None else f'{battery} %'):>7} "
                 f"{a.link_text():<5} {a.targets_known:>7}{says}"

@@ -12,6 +12,8 @@
 - Onboard mode (`swarmctl agent`: the plan flies some vehicles; the others' agents run elsewhere):
   each agent has a UDP socket that sends to `[knowledge] channel` (a MAVLink router or telemetry mesh
   that forwards to every agent) and reads what it forwards; every datagram in and out is recorded.
+- In both modes only the mission's vehicles' messages are merged, checked as swarmctl.knowledge.trust says;
+  with the mission's signing key every knowledge frame is signed and only signed ones are read.
 """
 
 from __future__ import annotations
@@ -59,7 +61,14 @@ def open_exchange(
     """Vehicle `index`'s exchange: on the bus (ground mode; give it its outlet with `link_outlet`) or on
     a UDP socket to the knowledge channel (onboard mode), recorded."""
     kn = Knowledge(plan.grid.width, plan.grid.height, vehicle_id=index)
-    common = dict(system_id=spec.sysid, digest_every=plan.spec.knowledge.digest_every, push=plan.spec.knowledge.push)
+    common = dict(
+        system_id=spec.sysid,
+        digest_every=plan.spec.knowledge.digest_every,
+        push=plan.spec.knowledge.push,
+        members=members(plan),
+        fov=plan.fov,
+        signing_key=plan.signing_key,
+    )
     if bus is not None:
         return KnowledgeExchange(kn, plan.spec.mission.id, bus=bus, **common)
     channel = plan.spec.knowledge.channel
@@ -68,6 +77,12 @@ def open_exchange(
     exchange = KnowledgeExchange(kn, plan.spec.mission.id, (channel.host, channel.port), **common)
     exchange.sock = TapSocket(exchange.sock, recorder)
     return exchange
+
+
+def members(plan: MissionPlan) -> dict[int, int]:
+    """Every vehicle of the mission (those other processes fly included): index -> system id, whose
+    knowledge messages alone are merged (swarmctl.knowledge.trust)."""
+    return {i: v.sysid for i, v in enumerate(plan.spec.vehicles)}
 
 
 def link_outlet(agent: Agent):

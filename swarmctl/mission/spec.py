@@ -374,6 +374,30 @@ class FlightTable(Table):
     telemetry_hz: float = setting(
         5.0, "GLOBAL_POSITION_INT rate asked of ArduPilot vehicles", ge=0.2, le=50.0, unit="Hz"
     )
+    off_course_m: float = setting(
+        10.0,
+        "distance from the path of its last step (to the centre of the cell it was sent to, from the centre of "
+        "the cell it held or from where it last was on course) beyond which a vehicle is off course: flagged "
+        "and sent its setpoint again",
+        ge=1.0,
+        le=1000.0,
+        unit="metres",
+    )
+    below_altitude_m: float = setting(
+        5.0,
+        "how far below the mission altitude a searching or hovering vehicle is off course",
+        ge=0.5,
+        le=1000.0,
+        unit="metres",
+    )
+    off_course_rounds: int = setting(
+        3,
+        "decision rounds in a row a vehicle may be off course before it is treated as taken over (no longer "
+        "commanded; the others carry on)",
+        ge=1,
+        le=1000,
+        unit="rounds",
+    )
 
 
 class BatteryTable(Table):

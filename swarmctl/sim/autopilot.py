@@ -43,7 +43,8 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import distance_m, from_deg_e7, ne_m, offset_m, to_deg_e7
-from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes
+from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes, valid_frame
+from swarmctl.signing import setup_signing
 from swarmctl.sim.boot import Boot
 from swarmctl.sim.fence import FENCE, MockFence
 from swarmctl.sim.personality import Personality, personality_named
@@ -226,10 +227,7 @@ class MockAutopilot:
         self.mav = MAV.MAVLink(self._outbox, srcSystem=self.sysid, srcComponent=self.compid)
         self.mav.robust_parsing = True
         if self.signing_key is not None:
-            s = self.mav.signing
-            s.secret_key, s.sign_outgoing, s.link_id = self.signing_key, True, 0
-            s.timestamp = int((max(time.time(), 1420070400) - 1420070400) * 100_000)
-            s.allow_unsigned_callback = lambda _mav, msg_id: msg_id == MAV.MAVLINK_MSG_ID_RADIO_STATUS
+            setup_signing(self.mav, self.signing_key, accept_unsigned={MAV.MAVLINK_MSG_ID_RADIO_STATUS})
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}", daemon=True)
         self._thread.start()
@@ -385,6 +383,8 @@ class MockAutopilot:
             now = time.monotonic()
             if data and now >= self._down_until and self.rng.random() >= self.packet_loss:
                 msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+                if any(valid_frame(m) for m in msgs):
+                    self._transport.accept_source()  # udpin: answer this address from now on
                 for msg in msgs:
                     if self.latency > 0:
                         heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))
@@ -751,9 +751,9 @@ class MockAutopilot:
         return ts is None or ts in (0, self.sysid)
 
     def _handle(self, msg: Any) -> None:
-        mtype = msg.get_type()
-        if mtype == "BAD_DATA":
+        if not valid_frame(msg):
             return
+        mtype = msg.get_type()
         if msg.get_srcSystem() == self.sysid:
             return  # our own echo (several vehicles on one channel)
         if not self._for_me(msg):
