@@ -115,8 +115,8 @@ def forward_seconds(policy, rows: int, seconds: float) -> float:
 
 
 def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
-    """Samples per second of the training loop (2 UAVs, 8 parallel episodes, batch 64, one gradient
-    step per joint step) and the ceiling the FLOPs allow: per sample, one forward to act plus
+    """Samples per CPU second of the training loop (2 UAVs, 8 parallel episodes, batch 64, one gradient
+    step per joint step; per wall second beside it) and the ceiling the FLOPs allow: per sample, one forward to act plus
     (batch / samples per joint step) x (online forward on o and o', target forward on o', and a
     backward counted as two forwards)."""
     from swarmctl.learn.ddql import TrainConfig, train
@@ -140,9 +140,10 @@ def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
     flops = forward_flops(world.window) * (1 + cfg.updates_per_step * cfg.batch_size / per_step * 5)
     ceiling = flops_per_s / flops
     return {
-        "train_samples_per_s": meta["train_samples_per_s"],
+        "train_samples_per_s": meta["train_samples_per_cpu_s"],  # per CPU second, as every figure here
+        "train_samples_per_wall_s": meta["train_samples_per_s"],
         "train_flop_ceiling_samples_per_s": ceiling,
-        "train_fraction_of_ceiling": meta["train_samples_per_s"] / ceiling,
+        "train_fraction_of_ceiling": meta["train_samples_per_cpu_s"] / ceiling,
         "train_setting": "2 UAVs, 20 x 20, 8 parallel episodes, batch 64, 1 gradient step per joint step",
     }
 
