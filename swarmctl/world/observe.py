@@ -14,9 +14,12 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs
 from swarmctl.world.moves import block_starts
+
+FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
 
 
 def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
@@ -42,8 +45,8 @@ def build_observations(
     each decider believes each vehicle is; others (B, U, N) bool: which of them enter the vehicle
     channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32.
 
-    The window and the vehicle counts are gathered and scattered with flat indices: a fixed handful of
-    numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
+    The vehicle counts are scattered with flat indices, and so is the window for up to FEW of them: a
+    fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
     b, u, w, h = value.shape
     f = window
     n = b * u
@@ -65,8 +68,12 @@ def build_observations(
             padded[:, :w, :h] = value.reshape(n, w, h)
         else:
             padded = value
-        start = block_starts(n, pw * ph) + corner[:, 0] * ph + corner[:, 1]
-        np.take(padded.reshape(-1), start[:, None, None] + _crop_offsets(f, ph), out=obs[:, 2], mode="clip")
+        if n <= FEW:  # one flat gather (a few numpy calls)
+            start = block_starts(n, pw * ph) + corner[:, 0] * ph + corner[:, 1]
+            np.take(padded.reshape(-1), start[:, None, None] + _crop_offsets(f, ph), out=obs[:, 2], mode="clip")
+        else:  # whole rows of the window at a time (2.3x faster than the flat gather at 640 windows)
+            views = sliding_window_view(padded.reshape(n, pw, ph), (f, f), axis=(1, 2))
+            obs[:, 2] = views[block_starts(n, 1), corner[:, 0], corner[:, 1]]
         own = pos - corner
         rel = positions.reshape(n, -1, 2) - corner[:, None, :]
         visible = others.reshape(n, -1) & np.logical_and.reduce((rel >= 0) & (rel < f), axis=-1)
