@@ -74,6 +74,9 @@ def test_the_python_int_draws_are_the_numpy_draws_bit_for_bit(seed, episodes, st
         bits = draws._mix(key[..., None] + index)
     reference = ((bits >> np.uint64(11)).astype(np.float64) * (1.0 / (1 << 53))).reshape(*key.shape, *shape)
     assert small.shape == reference.shape and np.array_equal(small, reference)
+    if not shape:  # one draw per decider, as a batch-1 decision asks for it
+        each = draws._one_each_small(seed, ep, step, ids, stream)
+        assert each.shape == reference.shape and np.array_equal(each, reference)
 
 
 def test_the_move_table_is_the_moves_with_off_map_as_minus_one():

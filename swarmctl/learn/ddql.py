@@ -178,7 +178,14 @@ def gradient_step(
 
     Fusing the forwards was measured and not taken: the online network on o and o' in one call of
     2 x 64 rows costs 1.6x the separate calls (the backward then runs over the o' rows too), and the
-    online and target networks on o' in one vmapped call gained nothing over two calls."""
+    online and target networks on o' in one vmapped call gained nothing over two calls. Nor were,
+    on one thread (CPU time, 2-core AMD EPYC, busy): torch.compile (inductor) of the loss, 39-49 ms a
+    step against eager's 42-49 after 149 s of compiling; onnxruntime for the no-grad forwards, as
+    fast as torch's channels-last ones at 64 rows (9.4 against 9.5 ms); RAdam(foreach=True), 0.4 ms
+    less a step but other bits (1e-4 apart after 50 steps). The step is the oneDNN convolutions'
+    time: per 64 rows 6.0 ms forward, 13.5 ms backward (conv2 alone 4.1 forward, 4.9 + 4.6 backward
+    for data and weights); with the acting forward that is ~33 ms of convolutions a joint step of the
+    bench's setting, whose FLOP ceiling is ~20 ms."""
     o, a, r, o2 = batch
     with torch.no_grad():
         if cfg.double:
@@ -209,6 +216,7 @@ class Progress:
     rounds: int = 0
     next_eval: int = 0
     train_seconds: float = 0.0
+    train_cpu_seconds: float = 0.0  # CPU time of the process in the training loop (all its threads)
     wall_seconds: float = 0.0  # of the earlier sessions of a resumed run
     evals: list = field(default_factory=list)
 
@@ -324,6 +332,8 @@ def train(
             "samples_per_s": round(state.samples / max(wall, 1e-9), 1),
             # in the training loop only: acting, stepping, replay and gradient steps (no prefill, evaluation, saving)
             "train_samples_per_s": round(state.samples / max(state.train_seconds, 1e-9), 1),
+            # the same per CPU second of the process: what a busy machine's waiting for a core leaves out
+            "train_samples_per_cpu_s": round(state.samples / max(state.train_cpu_seconds, 1e-9), 1),
             "evals": state.evals,
             "final_eval": state.evals[-1] if state.evals else None,
             "init": model_reference(init, init_info) if init else None,
@@ -346,7 +356,7 @@ def train(
     metadata: dict = {}
     explore_value = cfg.exploration_value(state.episodes_done / cfg.episodes)
     while state.episodes_done < cfg.episodes:
-        round_start = time.perf_counter()
+        round_start, round_cpu = time.perf_counter(), time.process_time()
         p = min(cfg.parallel_envs, cfg.episodes - state.episodes_done)
         first = TRAIN_EPISODE_OFFSET + state.episodes_done
         env, obs, length = start_round(state.rounds, state.episodes_done / cfg.episodes, p, first)
@@ -377,6 +387,7 @@ def train(
         if losses:
             recent_loss.extend(torch.stack(losses).cpu().tolist())
         state.train_seconds += time.perf_counter() - round_start
+        state.train_cpu_seconds += time.process_time() - round_cpu
         state.rounds += 1
         state.episodes_done += p
         recent_success.extend(succeeded.tolist())

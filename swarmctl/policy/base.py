@@ -19,7 +19,7 @@ from typing import Protocol
 import numpy as np
 
 from swarmctl.world.beliefs import Beliefs
-from swarmctl.world.moves import MOVES, STAY, move_table
+from swarmctl.world.moves import MOVES, STAY, block_starts, move_table
 
 
 class Policy(Protocol):
@@ -28,6 +28,15 @@ class Policy(Protocol):
     def reset(self, beliefs: Beliefs, seed: int) -> None: ...
 
     def act(self, beliefs: Beliefs) -> np.ndarray: ...
+
+
+_STAY_ONLY = np.arange(len(MOVES)) == STAY
+_STAY_ONLY.setflags(write=False)
+
+# The rules and the draw below call numpy's ufuncs and their reduce/accumulate methods directly: at
+# batch 1 a decision is a few dozen tiny array operations, and the wrappers (np.clip, ndarray.any,
+# .max, .sum, .cumsum) cost more than the arithmetic. The results are the same bits.
+_any, _all = np.logical_or.reduce, np.logical_and.reduce
 
 
 def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np.ndarray:
@@ -40,32 +49,35 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     if mask:
         w, h = beliefs.width, beliefs.height
         pos = beliefs.pos
-        dest = move_table(w, h)[pos[..., 0] * h + pos[..., 1]]  # (B, U, 5) flat cells, -1 off the map
+        dest = move_table(w, h).reshape(w, h, -1)[pos[..., 0], pos[..., 1]]  # (B, U, 5) flat cells, -1 off the map
         allowed = dest >= 0
-        known = beliefs.obstacles
-        if known.any():
-            flat = known.reshape(b, u, w * h)
-            allowed &= ~flat[np.arange(b)[:, None, None], np.arange(u)[None, :, None], dest]
+        if beliefs.any_obstacle:  # a move off the map reads some other cell here: it is refused already
+            rows = block_starts(b * u, w * h).reshape(b, u, 1)
+            allowed &= ~beliefs.obstacles.reshape(-1)[rows + dest]
         held = beliefs.others & beliefs.hovering  # (B, U, N): the cells they hover on are blocked
-        if held.any():
+        if _any(held, axis=None):
             cells = np.where(held, beliefs.positions[..., 0] * h + beliefs.positions[..., 1], -2)
-            allowed &= ~(dest[..., None] == cells[:, :, None, :]).any(-1)
+            allowed &= ~_any(dest[..., None] == cells[:, :, None, :], axis=-1)
     else:
         allowed = np.ones((b, u, len(MOVES)), dtype=bool)
     if hover:
         here = beliefs.hovering_self
         allowed[..., STAY] = here
-        allowed[here] = np.arange(len(MOVES)) == STAY
-    allowed[~allowed.any(-1), STAY] = True
+        if _any(here, axis=None):
+            allowed[here] = _STAY_ONLY
+    some = _any(allowed, axis=-1)
+    if not _all(some, axis=None):
+        allowed[..., STAY] |= ~some
     return allowed
 
 
 def softmax_sample(q: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
     """One action per row from softmax(q / tau); q is (N, A), u (N,) uniforms in [0, 1)."""
-    z = (q - q.max(axis=1, keepdims=True)) / tau
-    p = np.exp(z)
-    p /= p.sum(axis=1, keepdims=True)
-    return np.minimum((p.cumsum(axis=1) < np.asarray(u).reshape(-1, 1)).sum(axis=1), q.shape[1] - 1)
+    z = (q - np.maximum.reduce(q, axis=1, keepdims=True)) / tau
+    p = np.exp(z, out=z)
+    p /= np.add.reduce(p, axis=1, keepdims=True)
+    below = np.add.accumulate(p, axis=1) < np.asarray(u).reshape(-1, 1)
+    return np.minimum(np.add.reduce(below, axis=1), q.shape[1] - 1)
 
 
 def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, u: np.ndarray) -> np.ndarray:

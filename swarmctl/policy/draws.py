@@ -11,6 +11,7 @@ very numbers that vehicle draws for itself. 53-bit uniforms in [0, 1).
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 
@@ -86,17 +87,36 @@ def uniform(
     return out.reshape(*key.shape, *shape)
 
 
+@lru_cache(maxsize=64)
+def _seed_key(seed: int) -> int:
+    return _mix_int(0x5EED + _G + (seed & _MASK))
+
+
 def _uniform_small(seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape) -> np.ndarray:
-    """uniform() for a few draws, on Python ints: the same bits."""
+    """uniform() for a few draws, on Python ints: the same bits (the key's part up to the step is
+    folded once per episode)."""
     kshape = vehicles.shape if episodes.size == 1 else np.broadcast_shapes(episodes.shape, vehicles.shape)
     n, size = math.prod(kshape), math.prod(shape)
-    head = _mix_int(0x5EED + _G + (seed & _MASK))
+    head, at_step, tail = _seed_key(seed), _G + (step & _MASK), _G + (stream & _MASK)
+    upto_step: dict[int, int] = {}
     bits = []
-    for e, v in zip(_column(episodes, kshape, n), _column(vehicles.astype(np.int64), kshape, n)):
-        k = _mix_int(_mix_int(head + _G + (e & _MASK)) + _G + (step & _MASK))
-        k = _mix_int(_mix_int(k + _G + (v & _MASK)) + _G + (stream & _MASK))
+    for e, v in zip(_column(episodes, kshape, n), _column(vehicles, kshape, n)):
+        k = upto_step.get(e)
+        if k is None:
+            k = upto_step[e] = _mix_int(_mix_int(head + _G + (e & _MASK)) + at_step)
+        k = _mix_int(_mix_int(k + _G + (v & _MASK)) + tail)
         bits.extend(_mix_int(k + i * _G) >> 11 for i in range(size))
     return (np.array(bits, dtype=np.float64) * (1.0 / (1 << 53))).reshape(*kshape, *shape)
+
+
+def _one_each_small(seed: int, episodes: np.ndarray, step: int, me: np.ndarray, stream: int) -> np.ndarray:
+    """uniform(seed, episodes, step, me, stream) for me (B, U) with a few elements: the same bits."""
+    head, at_step, tail = _seed_key(seed), _G + (step & _MASK), _G + (stream & _MASK)
+    bits = []
+    for e, row in zip(episodes.tolist(), me.tolist()):
+        k = _mix_int(_mix_int(head + _G + (e & _MASK)) + at_step)
+        bits.extend(_mix_int(_mix_int(_mix_int(k + _G + (v & _MASK)) + tail)) >> 11 for v in row)
+    return (np.array(bits, dtype=np.float64) * (1.0 / (1 << 53))).reshape(me.shape)
 
 
 class Draws:
@@ -107,6 +127,8 @@ class Draws:
 
     def deciders(self, stream: int, *shape: int) -> np.ndarray:
         """(B, U, *shape) uniforms, one set per decider."""
+        if not shape and self.me.size <= SMALL:  # one draw per decider, few deciders: a decision at batch 1
+            return _one_each_small(self.seed, self.episodes, self.step, self.me, stream)
         return uniform(self.seed, self.episodes, self.step, self.me, stream, shape)
 
     def vehicles(self, stream: int, n: int, *shape: int) -> np.ndarray:

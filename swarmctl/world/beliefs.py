@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmctl.world.moves import block_starts
 from swarmctl.world.taken import remove_taken_targets
 
 PAPER_VARIANT = "venturini2021"  # the paper's F x F, 3-channel observation
@@ -225,11 +226,18 @@ class Beliefs:
     def any_taken(self) -> bool:
         """Whether any decider believes another vehicle sits on a target it knows (a gather at the
         others' cells, without building the grid-sized maps)."""
-        if not self.others.any():
+        if not np.logical_or.reduce(self.others, axis=None):
             return False
-        bi, ui = self._rows
-        cells = self.targets[bi[..., None], ui[..., None], self.positions[..., 0], self.positions[..., 1]]
-        return bool((cells & self.others).any())
+        b, u, w, h = self.explored.shape
+        rows = block_starts(b * u, w * h).reshape(b, u, 1)
+        # an unknown position (-1, -1) reads some other cell here: `others` leaves it out
+        cells = self.targets.reshape(-1)[rows + self.positions[..., 0] * h + self.positions[..., 1]]
+        return bool(np.logical_or.reduce(cells & self.others, axis=None))
+
+    @cached_property
+    def any_obstacle(self) -> bool:
+        """Whether any decider knows of an obstacle."""
+        return bool(np.logical_or.reduce(self.obstacles, axis=None))
 
     def phi_without_taken(self) -> np.ndarray:
         """phi_hat with the taken targets removed (swarmctl.world.taken), as LA(n) sees it."""
@@ -248,7 +256,7 @@ class Beliefs:
             return self._map("value")
         else:
             base = self.phi_hat
-        if self.obstacles.any():
+        if self.any_obstacle:
             return base - np.float32(self.settings.rho) * self.obstacles
         return base
 

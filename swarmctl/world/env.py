@@ -22,6 +22,7 @@ built from them. With `cfg.guard` the safety guard (swarmctl.world.guard) turns 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -241,7 +242,7 @@ class SearchEnv:
             return out
 
         def known_obstacles() -> np.ndarray:
-            return np.broadcast_to(False, explored.shape) if self._obstacle_free else explored & obstacles[:, None]
+            return _no_obstacles(explored.shape) if self._obstacle_free else explored & obstacles[:, None]
 
         targets = self.target_mask[rows]
         return Beliefs(
@@ -272,6 +273,12 @@ class SearchEnv:
         others = (self.known_pos[..., 0] >= 0) & self._not_me
         s = self.settings
         return build_observations(value, self.pos, self.known_pos, others, s.window, s.rho)
+
+
+@lru_cache(maxsize=16)
+def _no_obstacles(shape: tuple[int, ...]) -> np.ndarray:
+    """An all-False, read-only view of `shape`: the known obstacles of an obstacle-free world."""
+    return np.broadcast_to(False, shape)
 
 
 def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:

@@ -33,3 +33,12 @@ def cell_table(width: int, height: int) -> np.ndarray:
     table = np.stack(np.divmod(np.arange(width * height, dtype=np.int64), height), axis=-1)
     table.setflags(write=False)
     return table
+
+
+@lru_cache(maxsize=64)
+def block_starts(n: int, size: int) -> np.ndarray:
+    """(n,) int: 0, size, 2 size, ...: where each of n blocks of `size` elements starts in a flat
+    array (offsets for flat gathers and scatters over a batch; read-only)."""
+    starts = np.arange(0, n * size, size)
+    starts.setflags(write=False)
+    return starts

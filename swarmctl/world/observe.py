@@ -11,18 +11,15 @@ policies build Beliefs first (swarmctl.world.beliefs), so both see the same tens
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs
+from swarmctl.world.moves import block_starts
 
-
-def window_corners(pos: np.ndarray, width: int, height: int, window: int) -> np.ndarray:
-    """Lower corner of each vehicle's window; `pos` is (..., 2)."""
-    half = window // 2
-    cx = np.clip(pos[..., 0] - half, 0, max(width - window, 0))
-    cy = np.clip(pos[..., 1] - half, 0, max(height - window, 0))
-    return np.stack([cx, cy], axis=-1)
+FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
 
 
 def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
@@ -46,39 +43,59 @@ def build_observations(
 
     value: (B, U, W, H) float32 value channels; pos: (B, U, 2) own cells; positions (B, U, N, 2): where
     each decider believes each vehicle is; others (B, U, N) bool: which of them enter the vehicle
-    channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32."""
+    channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32.
+
+    The vehicle counts are scattered with flat indices, and so is the window for up to FEW of them: a
+    fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
     b, u, w, h = value.shape
     f = window
     n = b * u
     obs = np.zeros((n, 3, f, f), dtype=np.float32)
-    idx = np.arange(n)
+    pos = pos.reshape(n, 2)
     if w <= f and h <= f:  # one window covers the map: every corner is (0, 0)
-        corner = None
+        own = pos
         if w == f and h == f:
             obs[:, 2] = value.reshape(n, w, h)
         else:
             obs[:, 2] = -rho
             obs[:, 2, :w, :h] = value.reshape(n, w, h)
+        rel, visible = positions.reshape(n, -1, 2), others.reshape(n, -1)
     else:
-        corner = window_corners(pos, w, h, f).reshape(n, 2)
+        corner = np.minimum(np.maximum(pos - f // 2, 0), _corner_limit(w, h, f))  # ufuncs: no np.clip wrapper
         pw, ph = max(w, f), max(h, f)
         if (pw, ph) != (w, h):
             padded = np.full((n, pw, ph), -rho, dtype=np.float32)
             padded[:, :w, :h] = value.reshape(n, w, h)
         else:
-            padded = value.reshape(n, w, h)
-        views = sliding_window_view(padded, (f, f), axis=(1, 2))
-        obs[:, 2] = views[idx, corner[:, 0], corner[:, 1]]
-
-    own = pos.reshape(n, 2) if corner is None else pos.reshape(n, 2) - corner
-    obs[idx, 0, own[:, 0], own[:, 1]] = 1.0
-
-    if corner is None:  # every known position lies in the window
-        rel, visible = positions.reshape(n, -1, 2), others.reshape(n, -1)
-    else:
+            padded = value
+        if n <= FEW:  # one flat gather (a few numpy calls)
+            start = block_starts(n, pw * ph) + corner[:, 0] * ph + corner[:, 1]
+            np.take(padded.reshape(-1), start[:, None, None] + _crop_offsets(f, ph), out=obs[:, 2], mode="clip")
+        else:  # whole rows of the window at a time (2.3x faster than the flat gather at 640 windows)
+            views = sliding_window_view(padded.reshape(n, pw, ph), (f, f), axis=(1, 2))
+            obs[:, 2] = views[block_starts(n, 1), corner[:, 0], corner[:, 1]]
+        own = pos - corner
         rel = positions.reshape(n, -1, 2) - corner[:, None, :]
-        visible = others.reshape(n, -1) & (rel >= 0).all(-1) & (rel < f).all(-1)
-    rows, who = np.nonzero(visible)
-    if len(rows):  # one count per vehicle on its cell of channel 1
-        np.add.at(obs.reshape(-1), ((rows * 3 + 1) * f + rel[rows, who, 0]) * f + rel[rows, who, 1], 1.0)
+        visible = others.reshape(n, -1) & np.logical_and.reduce((rel >= 0) & (rel < f), axis=-1)
+    obs[block_starts(n, 1), 0, own[:, 0], own[:, 1]] = 1.0  # channel 0: the own cell
+    if np.logical_or.reduce(visible, axis=None):  # channel 1: one count per vehicle on its cell
+        cells = block_starts(n, 3 * f * f)[:, None] + (f * f + rel[..., 0] * f + rel[..., 1])
+        np.add.at(obs.reshape(-1), cells[visible], 1.0)
     return obs.reshape(b, u, 3, f, f)
+
+
+@lru_cache(maxsize=64)
+def _crop_offsets(window: int, height: int) -> np.ndarray:
+    """(F, F) flat offsets of a window's cells from its lower corner in a map of `height` rows per x."""
+    a = np.arange(window)
+    offsets = a[:, None] * height + a[None, :]
+    offsets.setflags(write=False)
+    return offsets
+
+
+@lru_cache(maxsize=64)
+def _corner_limit(width: int, height: int, window: int) -> np.ndarray:
+    """The largest window corner per axis (2,): W - F and H - F, 0 along an axis shorter than F."""
+    limit = np.array([max(width - window, 0), max(height - window, 0)])
+    limit.setflags(write=False)
+    return limit
