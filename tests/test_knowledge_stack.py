@@ -5,6 +5,7 @@ path's (each message merged into each receiver, one by one), which onboard agent
 from __future__ import annotations
 
 import contextlib
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from swarmctl.knowledge.bus import KnowledgeBus
 from swarmctl.knowledge.exchange import KnowledgeExchange
 from swarmctl.knowledge.model import Delta, Detection, Knowledge, Position, beliefs_from_knowledge
 from swarmctl.knowledge.stack import KnowledgeStack
+from swarmctl.mission.sensing import footprint, in_footprint
 from swarmctl.world.beliefs import ObservationSettings
 from swarmctl.world.channel import Channel
 from tests.knowledge_helpers import Walkers
@@ -152,3 +154,16 @@ def test_beliefs_from_one_stack_equal_beliefs_from_separate_knowledge():
         for name in ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
         assert a.targets.any() and (a.positions >= 0).all()
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    st.tuples(st.integers(0, 9), st.integers(0, 6)),
+    st.lists(st.tuples(st.integers(-3, 12), st.integers(-3, 9)), max_size=30),
+    st.sampled_from([1.0, 1.5, 2.0, 3.0, 3.2]),
+)
+def test_the_footprint_test_agrees_with_the_footprint_cells(cell, cells, fov):
+    grid = SimpleNamespace(width=10, height=7)
+    cells = np.array(cells, dtype=np.int64).reshape(-1, 2)
+    disc = {tuple(c) for c in footprint(cell, grid, fov).tolist()}
+    assert in_footprint(cells, cell, grid, fov).tolist() == [tuple(c) in disc for c in cells.tolist()]
