@@ -596,9 +596,9 @@ def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.
     maps: dict[bytes, np.ndarray] = {}
     out = []
     for mask in targets:
-        cells = np.argwhere(mask)
-        key = cells.tobytes()
+        key = mask.tobytes()
         if key not in maps:
+            cells = np.argwhere(mask)
             maps[key] = dequantise_phi(quantise_phi(value_map(cells, w, h, settings.sigma2, settings.phi_cutoff)))
         out.append(maps[key])
     return out
