@@ -3,7 +3,9 @@
 `Knowledge` is the controller's view of the world (the simulator keeps the same state for B x U
 vehicles in arrays; this is the batch-of-one form): which cells are explored, their value phi and
 obstacle flag where explored, where each vehicle was last known to be, and the target cells reported
-by detections. Arrays are indexed [x, y] (CONTRACTS.md).
+by detections. Arrays are indexed [x, y] (CONTRACTS.md). Its state is one row of a
+swarmctl.knowledge.stack.KnowledgeStack: a stack of its own, or the one the agents of a ground-mode
+process share (merged for all of them at once).
 
 phi is stored quantised to uint8 (`PHI_LEVELS` = 255 steps over [0, 1]) because that is how the
 MAVLink codec carries it: a vehicle's own observations and those it received agree bit for bit.
