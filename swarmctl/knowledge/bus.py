@@ -35,8 +35,8 @@ A lossy bus delivers to each receiver's inbox as above (what each one got differ
 and requests answer).
 
 Concurrency: none of its own; publish and poll from one thread (the controller's event loop).
-Deliveries wait in each receiver's inbox (a stacked ideal bus: in the bus) until it polls (KnowledgeExchange.poll), i.e. until the next
-decision round, as messages from the radio do.
+Deliveries wait in each receiver's inbox (a stacked ideal bus: in the bus) until it polls
+(KnowledgeExchange.poll), i.e. until the next decision round, as messages from the radio do.
 """
 
 from __future__ import annotations
