@@ -9,7 +9,11 @@ waiting for vehicles to reach their cells and for detector reports). The mocks r
 (or, with --same-process, in threads next to the controller, where they compete with it for the
 interpreter lock); on a small machine they still compete for the CPU, so the numbers are upper bounds.
 
-    python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--out results/]
+    python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--runs 3] [--out results/]
+
+With --runs N each size is flown N times, back to back, and the table gives the minimum and the median
+of the per-run means, with the machine's load average (1 min) before each run: on a shared machine
+the minimum is the figure least disturbed by other work.
 """
 
 from __future__ import annotations
@@ -91,6 +95,22 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
         )
 
 
+def summarise(runs: list[dict]) -> dict:
+    """One size's runs: the first run's fields, with the min and median of the per-run means and the
+    loads (a single run is returned as it is)."""
+    if len(runs) == 1:
+        return runs[0]
+    import statistics
+
+    out = dict(runs[0], runs=runs, loads=[round(r["load"], 2) for r in runs])
+    out["rounds"] = min(r.get("rounds", 0) for r in runs)
+    for key, name in (("decide_mean", "decide"), ("cpu_mean", "cpu"), ("round_mean", "round")):
+        values = [r[key] for r in runs if key in r]
+        out[f"{name}_min"] = min(values) if values else float("nan")
+        out[f"{name}_median"] = statistics.median(values) if values else float("nan")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[3, 12, 50])
@@ -104,8 +124,19 @@ def main() -> None:
         help="run the mocks in this process (they then compete for the interpreter lock)",
     )
     ap.add_argument("--out", type=Path, default=None, help="folder for controller_overhead.json/.txt")
+    ap.add_argument("--runs", type=int, default=1, help="flights per size (min and median reported)")
     args = ap.parse_args()
-    rows = [measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process) for n in args.sizes]
+    if args.runs < 1:
+        ap.error("--runs must be at least 1")
+    rows = []
+    for n in args.sizes:
+        runs = []
+        for _ in range(args.runs):
+            load = os.getloadavg()[0]
+            runs.append(
+                {**measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process), "load": load}
+            )
+        rows.append(summarise(runs))
     lines = [
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
         f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
@@ -114,7 +145,21 @@ def main() -> None:
         "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
         "|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for r in rows:
+    if args.runs > 1:
+        lines = lines[:2] + [
+            f"min / median of {args.runs} runs per size; load: the 1-minute load average before each run",
+            "",
+            "| vehicles | rounds | policy ms (min / median) | controller CPU ms (min / median) | "
+            "whole round ms (median) | load |",
+            "|---:|---:|---:|---:|---:|---:|",
+        ]
+        for r in rows:
+            lines.append(
+                f"| {r['vehicles']} | {r.get('rounds', 0)} | {r['decide_min']:.1f} / {r['decide_median']:.1f} | "
+                f"{r['cpu_min']:.1f} / {r['cpu_median']:.1f} | {r['round_median']:.1f} | "
+                f"{' '.join(f'{x:.1f}' for x in r['loads'])} |"
+            )
+    for r in rows if args.runs == 1 else []:
         lines.append(
             f"| {r['vehicles']} | {r.get('rounds', 0)} | {r.get('decide_mean', float('nan')):.1f} | "
             f"{r.get('cpu_mean', float('nan')):.1f} | "

@@ -30,9 +30,19 @@ system ids, positions no faster than a vehicle flies, detections inside the send
 swarmctl.knowledge.trust), with the member list and fov of the first member to join. Frames are signed
 when the members have a signing key (the outlet's copies: the recording and the vehicle links).
 
+With a `swarmctl.knowledge.stack.KnowledgeStack` (`KnowledgeBus(stack=...)`, every member's Knowledge a
+row of it, as `swarmctl.mission.sharing` builds them) an ideal bus does not queue each delta and
+detection in every receiver's inbox: it keeps the decoded message once and, at the first poll of any
+member, merges everything waiting into every receiver's row in one vectorised operation
+(KnowledgeStack.merge_batch) and counts it in each receiver's counters. Deltas and detections merge
+as a join (the order does not matter) and their handling sends nothing, so every agent ends each
+round with exactly the knowledge and counters it would have had merging its inbox message by message.
+A lossy bus delivers to each receiver's inbox as above (what each one got differs, and its digests
+and requests answer).
+
 Concurrency: none of its own; publish and poll from one thread (the controller's event loop).
-Deliveries wait in each receiver's inbox until it polls (KnowledgeExchange.poll), i.e. until the next
-decision round, as messages from the radio do.
+Deliveries wait in each receiver's inbox (a stacked ideal bus: in the bus) until it polls
+(KnowledgeExchange.poll), i.e. until the next decision round, as messages from the radio do.
 """
 
 from __future__ import annotations
@@ -43,6 +53,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarmctl.knowledge.codec import KIND_NAMES, PT_DELTA, PT_DETECTION, KnowledgeCodec
+from swarmctl.knowledge.stack import KnowledgeStack
 from swarmctl.knowledge.trust import KnowledgeTrust
 from swarmctl.world.channel import Channel
 
@@ -55,10 +66,12 @@ IDEAL_KINDS = frozenset({PT_DELTA, PT_DETECTION})  # what an ideal bus delivers 
 class KnowledgeBus:
     """Delivers each member's messages to every other member once (see the module docstring)."""
 
-    def __init__(self, channel: Channel | None = None, seed: int = 0):
+    def __init__(self, channel: Channel | None = None, seed: int = 0, stack: KnowledgeStack | None = None):
         self.channel = channel or Channel("ideal")
         self.seed = int(seed)
+        self.stack = stack
         self.members: list[KnowledgeExchange] = []
+        self._batch = _Batch(stack) if stack is not None else None
         self._codec: KnowledgeCodec | None = None
         self.trust = KnowledgeTrust()  # replaced by the first member's settings (join)
         self._rngs: dict[tuple[int, int], np.random.Generator] = {}
@@ -86,10 +99,22 @@ class KnowledgeBus:
         if any(m.vehicle_id == member.vehicle_id for m in self.members):
             raise ValueError(f"vehicle {member.vehicle_id} is on the bus already")
         self.members.append(member)
+        if self._batch is not None:
+            self._batch.joined(self.members)
 
     def leave(self, member: KnowledgeExchange) -> None:
         if member in self.members:
             self.members.remove(member)
+            if self._batch is not None:
+                self._batch.joined(self.members)
+
+    def collect(self, member: KnowledgeExchange) -> int:
+        """Merge what the bus holds for all members (a stacked ideal bus; see the module docstring) and
+        return how many messages `member` received since its last collect (0 without a stack)."""
+        if self._batch is None:
+            return 0
+        self._batch.flush()
+        return self._batch.handled.pop(member, 0)
 
     def publish(self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int) -> int:
         """One TUNNEL payload of `sender` (its frame `size` bytes long) to every other member, lost as the
@@ -105,6 +130,10 @@ class KnowledgeBus:
         if not self.trust.admit(message, sender.system_id):  # counted in trust.rejected, delivered to no one
             return 0
         kind = KIND_NAMES[payload_type]
+        if self.ideal and self._batch is not None and self._batch.stacked:
+            reached = self._batch.add(sender, message, kind, size)
+            self.delivered += reached
+            return reached
         reached = 0
         for receiver in self.members:
             if receiver is sender:
@@ -152,3 +181,60 @@ class KnowledgeBus:
             skipped=self.skipped,
             rejected={k: v for k, v in self.trust.rejected.items() if v},
         )
+
+
+class _Batch:
+    """What a stacked ideal bus holds until the next poll: each message once, with its receivers."""
+
+    def __init__(self, stack: KnowledgeStack):
+        self.stack = stack
+        self.stacked = True  # every member's knowledge is a row of the stack
+        self.rows: dict[KnowledgeExchange, int] = {}
+        self.mask = np.zeros(stack.rows, dtype=bool)  # the members' rows (a new array at each change)
+        self.messages: list = []
+        self.masks: list[np.ndarray] = []
+        self.senders: list[int] = []  # the senders' rows
+        self.kinds: list[str] = []
+        self.sizes: list[int] = []
+        self.handled: dict[KnowledgeExchange, int] = {}
+
+    def joined(self, members: list[KnowledgeExchange]) -> None:
+        """The membership changed: what was published before goes to the members of then."""
+        self.stacked = all(m.knowledge._stack is self.stack for m in members)
+        self.rows = {m: m.knowledge._row for m in members if m.knowledge._stack is self.stack}
+        self.mask = np.zeros(self.stack.rows, dtype=bool)
+        self.mask[list(self.rows.values())] = True
+
+    def add(self, sender: KnowledgeExchange, message, kind: str, size: int) -> int:
+        self.messages.append(message)
+        self.masks.append(self.mask)
+        self.senders.append(sender.knowledge._row)
+        self.kinds.append(kind)
+        self.sizes.append(size)
+        return int(self.mask.sum()) - 1
+
+    def flush(self) -> None:
+        """Merge every message held into its receivers' rows and count it in their counters."""
+        if not self.messages:
+            return
+        messages, masks, senders = self.messages, self.masks, self.senders
+        kinds, sizes = self.kinds, self.sizes
+        self.messages, self.masks, self.senders, self.kinds, self.sizes = [], [], [], [], []
+        receivers = np.stack(masks)
+        receivers[np.arange(len(messages)), senders] = False
+        self.stack.merge_batch(messages, receivers)
+        # each member's counters: all messages of the batch but its own (one mask in the common case)
+        packets = receivers.sum(axis=0)
+        size = np.asarray(sizes, dtype=np.int64) @ receivers
+        kind_of = np.array(kinds)
+        by_kind = {kind: receivers[kind_of == kind].sum(axis=0) for kind in sorted(set(kinds))}
+        for member, row in self.rows.items():
+            n = int(packets[row])
+            if not n:
+                continue
+            self.handled[member] = self.handled.get(member, 0) + n
+            member.stats["received_packets"] += n
+            member.stats["received_bytes"] += int(size[row])
+            for kind, counts in by_kind.items():
+                if counts[row]:
+                    member.codec.accepted[kind] += int(counts[row])

@@ -3,7 +3,9 @@
 `Knowledge` is the controller's view of the world (the simulator keeps the same state for B x U
 vehicles in arrays; this is the batch-of-one form): which cells are explored, their value phi and
 obstacle flag where explored, where each vehicle was last known to be, and the target cells reported
-by detections. Arrays are indexed [x, y] (CONTRACTS.md).
+by detections. Arrays are indexed [x, y] (CONTRACTS.md). Its state is one row of a
+swarmctl.knowledge.stack.KnowledgeStack: a stack of its own, or the one the agents of a ground-mode
+process share (merged for all of them at once).
 
 phi is stored quantised to uint8 (`PHI_LEVELS` = 255 steps over [0, 1]) because that is how the
 MAVLink codec carries it: a vehicle's own observations and those it received agree bit for bit.
@@ -20,10 +22,12 @@ Merge semantics (a join semilattice, so merging is idempotent, commutative and a
 
 from __future__ import annotations
 
+from collections.abc import MutableMapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarmctl.knowledge.stack import MAX_IDS, NEVER, UNKNOWN, KnowledgeStack, key_cells, position_key, split_key
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
 from swarmctl.world.scenario import fov_offsets, value_map
@@ -169,19 +173,140 @@ class Detection(Report):
         return self._same_report(other) and np.array_equal(self.targets, other.targets)
 
 
-class Knowledge:
-    """One vehicle's view of a width x height grid (see the module docstring for merge rules)."""
+class PositionTable(MutableMapping):
+    """A Knowledge's known positions, vehicle id -> Position, kept as keys in its stack row (ids in
+    ascending order; a position without a cell is never stored)."""
 
-    def __init__(self, width: int, height: int, vehicle_id: int = 0):
+    def __init__(self, row: np.ndarray):
+        self._row = row
+
+    def __getitem__(self, vehicle: int) -> Position:
+        if not isinstance(vehicle, (int, np.integer)) or not 0 <= vehicle < self._row.size or self._row[vehicle] < 0:
+            raise KeyError(vehicle)
+        step, cell, on_target = split_key(self._row[vehicle])
+        return Position(step, cell, on_target)
+
+    def __setitem__(self, vehicle: int, position: Position) -> None:
+        if position.cell is None:
+            raise ValueError("a known position has a cell")
+        if not 0 <= int(vehicle) < self._row.size:
+            raise ValueError(f"vehicle id {vehicle} is outside 0..{self._row.size - 1}")
+        self._row[int(vehicle)] = position_key(position.step, position.cell, position.on_target)
+
+    def __delitem__(self, vehicle: int) -> None:
+        self[vehicle]  # KeyError when unknown
+        self._row[vehicle] = UNKNOWN
+
+    def __iter__(self):
+        return iter(np.flatnonzero(self._row >= 0).tolist())
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(self._row >= 0))
+
+    def __repr__(self) -> str:
+        return repr(dict(self.items()))
+
+
+class TargetTable(MutableMapping):
+    """A Knowledge's known targets, cell (x, y) -> earliest report step, kept in its stack row (cells in
+    x, y order)."""
+
+    def __init__(self, steps: np.ndarray):
+        self._steps = steps
+
+    def _cell(self, cell) -> tuple[int, int]:
+        try:
+            x, y = int(cell[0]), int(cell[1])
+        except (TypeError, ValueError, IndexError):
+            raise KeyError(cell) from None
+        if not (0 <= x < self._steps.shape[0] and 0 <= y < self._steps.shape[1]):
+            raise KeyError(cell)
+        return x, y
+
+    def __contains__(self, cell) -> bool:
+        try:
+            return bool(self._steps[self._cell(cell)] != NEVER)
+        except KeyError:
+            return False
+
+    def __getitem__(self, cell) -> int:
+        step = self._steps[self._cell(cell)]
+        if step == NEVER:
+            raise KeyError(cell)
+        return int(step)
+
+    def __setitem__(self, cell, step: int) -> None:
+        try:
+            self._steps[self._cell(cell)] = int(step)
+        except KeyError:
+            raise ValueError(f"target cell {cell} is outside the grid") from None
+
+    def __delitem__(self, cell) -> None:
+        self[cell]  # KeyError when unknown
+        self._steps[self._cell(cell)] = NEVER
+
+    def __iter__(self):
+        x, y = np.nonzero(self._steps != NEVER)
+        return iter(zip(x.tolist(), y.tolist()))
+
+    def __len__(self) -> int:
+        return int(np.count_nonzero(self._steps != NEVER))
+
+    def __repr__(self) -> str:
+        return repr(dict(self.items()))
+
+
+class Knowledge:
+    """One vehicle's view of a width x height grid (see the module docstring for merge rules).
+
+    Its state lives in one row of a swarmctl.knowledge.stack.KnowledgeStack: its own stack of one, or
+    `stack=(stack, row)`, a row of the stack the agents of a process share (KnowledgeStack.knowledge).
+    `explored`, `phi_q` and `obstacle` are views of that row, `positions` and `targets` mappings onto it."""
+
+    def __init__(
+        self, width: int, height: int, vehicle_id: int = 0, *, stack: tuple[KnowledgeStack, int] | None = None
+    ):
         if width < 1 or height < 1:
             raise ValueError(f"grid {width} x {height} must have at least one cell")
         self.width, self.height, self.vehicle_id = int(width), int(height), int(vehicle_id)
-        self.explored = np.zeros((self.width, self.height), dtype=bool)
-        self.phi_q = np.zeros((self.width, self.height), dtype=np.uint8)  # 0 where unexplored
-        self.obstacle = np.zeros((self.width, self.height), dtype=bool)  # False where unexplored
-        self.positions: dict[int, Position] = {}
-        self.targets: dict[tuple[int, int], int] = {}  # target cell -> earliest report step
+        if self.vehicle_id < 0:
+            raise ValueError(f"vehicle id {vehicle_id} must not be negative")
+        if stack is None:
+            stack = (KnowledgeStack(1, self.width, self.height, ids=max(MAX_IDS, self.vehicle_id + 1)), 0)
+        self._stack, self._row = stack
+        st, row = stack
+        if (st.width, st.height) != (self.width, self.height) or self.vehicle_id >= st.ids:
+            raise ValueError("a knowledge's stack must hold its grid and its vehicle id")
+        self.explored = st.explored[row]
+        self.phi_q = st.phi_q[row]  # 0 where unexplored
+        self.obstacle = st.obstacle[row]  # False where unexplored
+        self._position = st.position[row]
+        self._target_step = st.target_step[row]
         self._pending = np.zeros((self.width, self.height), dtype=bool)  # own finds not yet published
+
+    @property
+    def positions(self) -> PositionTable:
+        """vehicle id -> its last known Position (a mapping onto the stack row)."""
+        return PositionTable(self._position)
+
+    @positions.setter
+    def positions(self, value) -> None:
+        self._position[:] = UNKNOWN
+        table = self.positions
+        for v, p in dict(value).items():
+            table[v] = p
+
+    @property
+    def targets(self) -> TargetTable:
+        """target cell -> earliest report step (a mapping onto the stack row)."""
+        return TargetTable(self._target_step)
+
+    @targets.setter
+    def targets(self, value) -> None:
+        self._target_step[:] = NEVER
+        table = self.targets
+        for c, s in dict(value).items():
+            table[c] = s
 
     # ----- views ------------------------------------------------------------------------------------
     @property
@@ -200,10 +325,7 @@ class Knowledge:
 
     def known_targets(self) -> np.ndarray:
         """(W, H) bool: cells known to hold a target (reported by a detection, or sensed with phi 1)."""
-        mask = self.explored & (self.phi_q == PHI_LEVELS)
-        for x, y in self.targets:
-            mask[x, y] = True
-        return mask
+        return (self.explored & (self.phi_q == PHI_LEVELS)) | (self._target_step != NEVER)
 
     def beliefs(
         self,
@@ -234,9 +356,9 @@ class Knowledge:
         """Record the own position: it replaces any stored one of the same step or older (the vehicle
         knows best where it is); an older step than the stored one is ignored."""
         self._check_cells(_cells_array([cell]))
-        old = self.positions.get(self.vehicle_id)
-        if old is None or int(step) >= old.step:
-            self.positions[self.vehicle_id] = Position(int(step), (int(cell[0]), int(cell[1])), bool(on_target))
+        old = self._position[self.vehicle_id]
+        if old < 0 or int(step) >= split_key(old)[0]:
+            self._position[self.vehicle_id] = position_key(step, cell, on_target)
 
     def sense(self, cells, phi, obstacle) -> int:
         """Own observation of `cells` (N, 2) with their true phi (float) and obstacle flags.
@@ -290,10 +412,10 @@ class Knowledge:
         )
 
     def add_targets(self, cells, step: int) -> None:
-        for c in _cells_array(cells):
-            self._check_cells(c[None])
-            key = (int(c[0]), int(c[1]))
-            self.targets[key] = min(self.targets.get(key, int(step)), int(step))
+        """Target cells reported at `step` (each keeps its earliest step)."""
+        c = _cells_array(cells)
+        self._check_cells(c)
+        np.minimum.at(self._target_step, (c[:, 0], c[:, 1]), int(step))
 
     # ----- merging ----------------------------------------------------------------------------------
     def merge(self, other: Delta | Detection | Knowledge) -> Knowledge:
@@ -304,8 +426,7 @@ class Knowledge:
             self._apply_mask(other.explored, other.phi_q, other.obstacle)
             for v, p in other.positions.items():
                 self._merge_position(v, p)
-            for c, s in other.targets.items():
-                self.targets[c] = min(self.targets.get(c, s), s)
+            np.minimum(self._target_step, other._target_step, out=self._target_step)
         elif isinstance(other, Delta):
             self._check_cells(other.cells)
             self._apply(other.cells[:, 0], other.cells[:, 1], other.phi, other.obstacle)
@@ -326,9 +447,10 @@ class Knowledge:
         return self.copy().merge(other)
 
     def copy(self) -> Knowledge:
-        k = Knowledge(self.width, self.height, self.vehicle_id)
-        k.explored, k.phi_q, k.obstacle = self.explored.copy(), self.phi_q.copy(), self.obstacle.copy()
-        k.positions, k.targets, k._pending = dict(self.positions), dict(self.targets), self._pending.copy()
+        st = KnowledgeStack(1, self.width, self.height, ids=self._position.size)
+        k = Knowledge(self.width, self.height, self.vehicle_id, stack=(st, 0))
+        for name in ("explored", "phi_q", "obstacle", "_position", "_target_step", "_pending"):
+            getattr(k, name)[...] = getattr(self, name)
         return k
 
     def same_map(self, other: Knowledge) -> bool:
@@ -378,9 +500,11 @@ class Knowledge:
     def _merge_position(self, vehicle: int, position: Position) -> None:
         if position.cell is None:
             return
-        old = self.positions.get(vehicle)
-        if old is None or position.order() > old.order():
-            self.positions[vehicle] = position
+        if not 0 <= vehicle < self._position.size:
+            raise ValueError(f"vehicle id {vehicle} is outside 0..{self._position.size - 1}")
+        key = position_key(position.step, position.cell, position.on_target)
+        if key > self._position[vehicle]:
+            self._position[vehicle] = key
 
 
 def beliefs_from_knowledge(
@@ -408,33 +532,38 @@ def beliefs_from_knowledge(
     if not knowledges:
         raise ValueError("beliefs need at least one agent's knowledge")
     w, h = knowledges[0].width, knowledges[0].height
-    ids = {k.vehicle_id for k in knowledges} | {v for k in knowledges for v in k.positions}
-    n = max(ids) + 1 if vehicles is None else int(vehicles)
-    if max(ids) >= n:
-        raise ValueError(f"vehicle id {max(ids)} is outside a swarm of {n}")
+    if any((k.width, k.height) != (w, h) for k in knowledges):
+        raise ValueError("beliefs of one batch share one grid")
     a = len(knowledges)
-    positions = np.full((1, a, n, 2), -1, dtype=np.int64)
-    hover = np.zeros((1, a, n), dtype=bool)
-    for i, k in enumerate(knowledges):
-        if (k.width, k.height) != (w, h):
-            raise ValueError("beliefs of one batch share one grid")
-        own = k.own_position
-        if own is None or own.cell is None:
-            raise ValueError(f"vehicle {k.vehicle_id} does not know its own cell yet: call set_position first")
-        for v, p in k.positions.items():
-            if p.cell is not None:
-                positions[0, i, v] = p.cell
-                hover[0, i, v] = p.on_target and v != k.vehicle_id
-        hover[0, i, k.vehicle_id] = bool(hovering[i]) if hovering is not None else False
+    me = np.array([k.vehicle_id for k in knowledges], dtype=np.int64)
+    keys = _stacked(knowledges, "position", UNKNOWN)
+    known = keys >= 0
+    named = np.flatnonzero(known.any(axis=0))
+    top = max(int(me.max()), int(named[-1]) if named.size else -1)
+    n = top + 1 if vehicles is None else int(vehicles)
+    if top >= n:
+        raise ValueError(f"vehicle id {top} is outside a swarm of {n}")
+    lacking = np.flatnonzero(~known[np.arange(a), me])
+    if lacking.size:
+        raise ValueError(
+            f"vehicle {knowledges[lacking[0]].vehicle_id} does not know its own cell yet: call set_position first"
+        )
+    if keys.shape[1] < n:
+        keys = np.concatenate([keys, np.full((a, n - keys.shape[1]), UNKNOWN, dtype=np.int64)], axis=1)
+    keys = keys[:, :n]
+    positions = key_cells(keys)[None]
+    hover = (keys >= 0) & (keys & 1).astype(bool)
+    hover[np.arange(a), me] = np.asarray(hovering, dtype=bool) if hovering is not None else False
+    hover = hover[None]
     settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
-    explored = np.stack([k.explored for k in knowledges])[None]
-    targets = np.stack([k.known_targets() for k in knowledges])[None]
-    value = _known_value(targets[0], settings)
-    phi_hat = np.stack(
-        [np.where(k.explored, np.maximum(k.phi, v), np.float32(1.0)) for k, v in zip(knowledges, value)]
-    )[None]
-    obstacles = np.stack([k.explored & k.obstacle for k in knowledges])[None]
-    me = np.array([[k.vehicle_id for k in knowledges]], dtype=np.int64)
+    explored = _stacked(knowledges, "explored")
+    phi_q = _stacked(knowledges, "phi_q")
+    targets = (explored & (phi_q == PHI_LEVELS)) | (_stacked(knowledges, "target_step") != NEVER)
+    value = np.stack(_known_value(targets, settings))
+    phi_hat = np.where(explored, np.maximum(dequantise_phi(phi_q), value), np.float32(1.0))[None]
+    obstacles = (explored & _stacked(knowledges, "obstacle"))[None]
+    explored, targets = explored[None], targets[None]
+    me = me[None]
     return Beliefs(
         explored,
         phi_hat,
@@ -449,6 +578,18 @@ def beliefs_from_knowledge(
     )
 
 
+def _stacked(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
+    """(A, ...) the stack arrays `name` of the knowledges' rows: one gather when they share a stack."""
+    stack = knowledges[0]._stack
+    if all(k._stack is stack for k in knowledges):
+        return getattr(stack, name)[[k._row for k in knowledges]]
+    rows = [getattr(k._stack, name)[k._row] for k in knowledges]
+    if fill is not None and len({r.size for r in rows}) > 1:  # position rows of different widths
+        width = max(r.size for r in rows)
+        rows = [np.concatenate([r, np.full(width - r.size, fill, dtype=r.dtype)]) for r in rows]
+    return np.stack(rows)
+
+
 def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.ndarray]:
     """The value map of each agent's known targets ((A, W, H) bool), quantised as phi is (so where a
     detector reported the true phi, the max leaves it unchanged: quantising is monotone), computed once
@@ -457,9 +598,9 @@ def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.
     maps: dict[bytes, np.ndarray] = {}
     out = []
     for mask in targets:
-        cells = np.argwhere(mask)
-        key = cells.tobytes()
+        key = mask.tobytes()
         if key not in maps:
+            cells = np.argwhere(mask)
             maps[key] = dequantise_phi(quantise_phi(value_map(cells, w, h, settings.sigma2, settings.phi_cutoff)))
         out.append(maps[key])
     return out

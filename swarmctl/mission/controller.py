@@ -232,7 +232,8 @@ class Controller:
 
     def ours(self, vehicle_index: int) -> bool:
         """The vehicle (its index in the mission) is flown by this process."""
-        return any(a.index == vehicle_index for a in self.agents)
+        only = self.plan.only  # the agents are made for exactly these vehicles (all of them: None)
+        return 0 <= vehicle_index < len(self.plan.spec.vehicles) and (only is None or vehicle_index in only)
 
     # --- the end ---------------------------------------------------------------------------------------
     async def _finish_safely(self) -> None:

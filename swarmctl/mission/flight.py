@@ -32,6 +32,8 @@ def held(c: Controller, exclude: Agent | None = None) -> set[tuple[int, int]]:
     """The cells vehicles hold: this process's agents (but `exclude`) and the vehicles of other
     processes known through the knowledge channel."""
     cells = {a.cell for a in c.agents if a is not exclude and a.cell is not None and a.state is not State.FAILED}
+    if c.plan.only is None:  # ground mode: every vehicle is one of this process's agents
+        return cells
     for a in c.agents:
         for v, p in a.knowledge.peers.items():
             if not c.ours(v) and p.cell is not None:

@@ -53,13 +53,20 @@ def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
     return disc_cells(cell, grid.width, grid.height, fov)
 
 
+def in_footprint(cells: np.ndarray, cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
+    """(N,) bool: which of `cells` (N, 2) lie in the footprint round `cell` (the grid's cells whose
+    offset from `cell` is in the sensing disc, swarmctl.world.scenario.fov_offsets)."""
+    d = cells - np.asarray(cell, dtype=np.int64)
+    on_grid = (cells[:, 0] >= 0) & (cells[:, 0] < grid.width) & (cells[:, 1] >= 0) & (cells[:, 1] < grid.height)
+    return on_grid & ((d * d).sum(axis=1) <= fov**2 + 1e-9)
+
+
 def sense(
     grid: Any, fov: float, reached: tuple[int, int] | None, reports: Iterable[Any], visited: Collection[tuple[int, int]]
 ) -> Sensed:
     """The footprint round `reached` (None: the vehicle did not arrive anywhere new this round) with the
     grid's obstacles and phi 0, plus what `reports` (SensorReports) say within the footprints of cells
     in `visited` (the cells the vehicle reached, `reached` included)."""
-    h = grid.height
     cells, phi, obstacle, targets, origins = [], [], [], [], []
     dropped = 0
     if reached is not None:
@@ -73,10 +80,8 @@ def sense(
         if tuple(r.cell) not in visited:
             dropped += len(rc) + len(rt)
             continue
-        disc = footprint(tuple(r.cell), grid, fov)
-        flat = disc[:, 0] * h + disc[:, 1]
-        keep = np.isin(rc[:, 0] * h + rc[:, 1], flat)
-        keep_t = np.isin(rt[:, 0] * h + rt[:, 1], flat)
+        keep = in_footprint(rc, tuple(r.cell), grid, fov)
+        keep_t = in_footprint(rt, tuple(r.cell), grid, fov)
         dropped += int((~keep).sum() + (~keep_t).sum())
         cells.append(rc[keep])
         phi.append(np.asarray(r.phi, dtype=np.float32).reshape(-1)[keep])

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 from swarmctl.knowledge.bus import KnowledgeBus
 from swarmctl.knowledge.exchange import KnowledgeExchange
 from swarmctl.knowledge.model import Knowledge
+from swarmctl.knowledge.stack import KnowledgeStack
 
 if TYPE_CHECKING:
     from swarmctl.mission.agent import Agent
@@ -51,8 +52,12 @@ class TapSocket:
 
 
 def make_bus(plan: MissionPlan) -> KnowledgeBus | None:
-    """The process's bus in ground mode (None in onboard mode)."""
-    return None if plan.onboard else KnowledgeBus(plan.bus_channel, seed=plan.seed)
+    """The process's bus in ground mode (None in onboard mode), with the stack that holds every agent's
+    knowledge (one row per vehicle of the mission: see swarmctl.knowledge.stack)."""
+    if plan.onboard:
+        return None
+    stack = KnowledgeStack(max(1, len(plan.spec.vehicles)), plan.grid.width, plan.grid.height)
+    return KnowledgeBus(plan.bus_channel, seed=plan.seed, stack=stack)
 
 
 def open_exchange(
@@ -60,7 +65,10 @@ def open_exchange(
 ) -> KnowledgeExchange:
     """Vehicle `index`'s exchange: on the bus (ground mode; give it its outlet with `link_outlet`) or on
     a UDP socket to the knowledge channel (onboard mode), recorded."""
-    kn = Knowledge(plan.grid.width, plan.grid.height, vehicle_id=index)
+    if bus is not None and bus.stack is not None:
+        kn = bus.stack.knowledge(index)
+    else:
+        kn = Knowledge(plan.grid.width, plan.grid.height, vehicle_id=index)
     common = dict(
         system_id=spec.sysid,
         digest_every=plan.spec.knowledge.digest_every,

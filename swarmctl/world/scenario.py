@@ -7,6 +7,7 @@ Episode i of a run depends only on (seed, i): `episode_rng(seed, i)` is its gene
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -205,8 +206,16 @@ def value_map(targets: np.ndarray, width: int, height: int, sigma2: float = 1.0,
     return phi
 
 
+@functools.lru_cache(maxsize=16)
 def fov_offsets(radius: float) -> np.ndarray:
-    """Cell offsets of the Euclidean sensing disc ||d|| <= radius (29 cells for radius 3)."""
+    """Cell offsets of the Euclidean sensing disc ||d|| <= radius (29 cells for radius 3); read-only,
+    made once per radius (every agent senses its disc every step)."""
+    offsets = _disc_offsets(float(radius))
+    offsets.flags.writeable = False
+    return offsets
+
+
+def _disc_offsets(radius: float) -> np.ndarray:
     r = int(np.floor(radius))
     d = np.arange(-r, r + 1)
     dx, dy = np.meshgrid(d, d, indexing="ij")

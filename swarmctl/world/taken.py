@@ -32,6 +32,23 @@ def remove_taken_targets(
     quantised phi)."""
     if not taken.any():
         return phi_hat
+    lead = phi_hat.shape[:-2]
+    if len(lead) and int(np.prod(lead)) > 1:  # many maps, often equal (agents sharing knowledge): each once
+        flat = [a.reshape(-1, *a.shape[-2:]) for a in (phi_hat, explored, taken)]
+        first: dict[bytes, int] = {}
+        which = np.array(
+            [first.setdefault(p.tobytes() + e.tobytes() + t.tobytes(), len(first)) for p, e, t in zip(*flat)]
+        )
+        if len(first) < which.size:
+            keep = np.unique(which, return_index=True)[1]
+            done = _remove(*(a[keep] for a in flat), sigma2, cutoff, tolerance)
+            return done[which].reshape(phi_hat.shape)
+    return _remove(phi_hat, explored, taken, sigma2, cutoff, tolerance)
+
+
+def _remove(
+    phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float, cutoff: float, tolerance: float
+) -> np.ndarray:
     sampling = [_FAR] * (phi_hat.ndim - 2) + [1.0, 1.0]
     remaining = explored & (phi_hat >= 1.0) & ~taken
     gone = value_bump(distance_transform_edt(~taken, sampling=sampling), sigma2, cutoff)

@@ -1,0 +1,128 @@
+"""The knowledge of many agents in stacked arrays, merged for all of them at once.
+
+    stack = KnowledgeStack(50, 50, 50)           # 50 agents on a 50 x 50 grid
+    kn = stack.knowledge(3)                      # agent row 3: a Knowledge whose arrays are views
+    stack.merge_batch(messages, receivers)       # deltas and detections into every receiver, vectorised
+
+Every `swarmctl.knowledge.model.Knowledge` keeps its state in one row of a stack: explored, phi_q and
+obstacle (N, W, H), the positions it knows (N, 256: one column per vehicle id, each an int64 key that
+orders like Position.order(); -1 unknown) and the earliest step of each target cell it knows (N, W, H;
+NEVER where none). A Knowledge made on its own holds a stack of one row; the agents of a ground-mode
+process (swarmctl.knowledge.bus with a stack) hold one row each of the same stack, so what the bus
+delivers to all of them is merged in a few numpy operations instead of one Python merge per agent and
+message. The merges are the same join (logical or, max, newest position, earliest target step), so
+the result is exactly that of merging each message into each receiver one by one, in any order.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from swarmctl.knowledge.model import Delta, Detection, Knowledge
+
+MAX_IDS = 256  # vehicle ids 0..255 (the codec's u8 sender)
+UNKNOWN = -1  # a position key: no position known
+NEVER = np.iinfo(np.int64).max  # a target step: no target known there
+
+
+MAX_SIDE = 1 << 12  # cells per side a position key holds
+_XY = 0xFFF
+
+
+def position_key(step: int, cell: tuple[int, int], on_target: bool) -> int:
+    """An int64 that orders like Position.order(): step (< 2^38), then x, then y (< 4096), then
+    on_target."""
+    if not 0 <= int(step) < 1 << 38:
+        raise ValueError(f"step {step} must be 0..2^38 - 1")
+    return (int(step) << 25) | (int(cell[0]) << 13) | (int(cell[1]) << 1) | int(bool(on_target))
+
+
+def split_key(key: int) -> tuple[int, tuple[int, int], bool]:
+    """The (step, cell, on_target) of a position key."""
+    key = int(key)
+    return key >> 25, ((key >> 13) & _XY, (key >> 1) & _XY), bool(key & 1)
+
+
+def key_cells(keys: np.ndarray) -> np.ndarray:
+    """(..., 2) cells of an array of position keys (-1, -1 where unknown)."""
+    cells = np.stack([(keys >> 13) & _XY, (keys >> 1) & _XY], axis=-1)
+    return np.where((keys >= 0)[..., None], cells, -1)
+
+
+class KnowledgeStack:
+    """The state of `rows` agents' knowledge of a width x height grid (see the module docstring)."""
+
+    def __init__(self, rows: int, width: int, height: int, ids: int = MAX_IDS):
+        if rows < 1:
+            raise ValueError("a knowledge stack holds at least one agent")
+        if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
+            raise ValueError(f"grid {width} x {height} must have 1..{MAX_SIDE} cells a side")
+        self.rows, self.width, self.height, self.ids = int(rows), int(width), int(height), int(ids)
+        shape = (self.rows, self.width, self.height)
+        self.explored = np.zeros(shape, dtype=bool)
+        self.phi_q = np.zeros(shape, dtype=np.uint8)  # 0 where unexplored
+        self.obstacle = np.zeros(shape, dtype=bool)  # False where unexplored
+        self.position = np.full((self.rows, self.ids), UNKNOWN, dtype=np.int64)
+        self.target_step = np.full(shape, NEVER, dtype=np.int64)
+        self._views: dict[int, Knowledge] = {}
+
+    def knowledge(self, row: int, vehicle_id: int | None = None) -> Knowledge:
+        """The Knowledge of agent `row` (vehicle id `row` unless given); one per row."""
+        from swarmctl.knowledge.model import Knowledge
+
+        if not 0 <= row < self.rows:
+            raise ValueError(f"row {row} is outside a stack of {self.rows}")
+        if row in self._views:
+            raise ValueError(f"row {row} of the knowledge stack is taken already")
+        kn = Knowledge(self.width, self.height, row if vehicle_id is None else vehicle_id, stack=(self, row))
+        self._views[row] = kn
+        return kn
+
+    def merge_batch(self, messages: list[Delta | Detection], receivers: np.ndarray) -> None:
+        """Merge each message i into the rows where receivers[i] (M, rows) is True, all at once: the
+        same result as Knowledge.merge of each message into each of its receivers."""
+        from swarmctl.knowledge.model import Delta
+
+        if not messages:
+            return
+        receivers = np.asarray(receivers, dtype=bool).reshape(len(messages), self.rows)
+        senders = np.array([m.sender for m in messages], dtype=np.int64)
+        keys = np.array(
+            [UNKNOWN if m.cell is None else position_key(m.step, m.cell, m.on_target) for m in messages],
+            dtype=np.int64,
+        )
+        mi, ri = np.nonzero(receivers)
+        np.maximum.at(self.position, (ri, senders[mi]), keys[mi])
+        deltas = [i for i, m in enumerate(messages) if isinstance(m, Delta)]
+        detections = [i for i, m in enumerate(messages) if not isinstance(m, Delta)]
+        if deltas:
+            cells = [messages[i].cells for i in deltas]
+            x, y, owner = self._cells(cells, deltas)
+            ci, ri = np.nonzero(receivers[owner])
+            if ci.size:
+                xs, ys = x[ci], y[ci]
+                phi = np.concatenate([messages[i].phi for i in deltas])
+                obstacle = np.concatenate([messages[i].obstacle for i in deltas])
+                self.explored[ri, xs, ys] = True
+                np.maximum.at(self.phi_q, (ri, xs, ys), phi[ci])
+                hit = obstacle[ci]
+                self.obstacle[ri[hit], xs[hit], ys[hit]] = True
+        if detections:
+            x, y, owner = self._cells([messages[i].targets for i in detections], detections)
+            steps = np.array([messages[i].step for i in detections], dtype=np.int64)
+            ci, ri = np.nonzero(receivers[owner])
+            if ci.size:
+                np.minimum.at(self.target_step, (ri, x[ci], y[ci]), steps[np.searchsorted(detections, owner[ci])])
+
+    def _cells(self, parts: list[np.ndarray], index: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """x, y of the concatenated (K_i, 2) cell lists and the message index each cell came from."""
+        cells = np.concatenate(parts).reshape(-1, 2)
+        if cells.size and (
+            (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
+        ):
+            raise ValueError(f"cells outside the {self.width} x {self.height} grid")
+        owner = np.repeat(np.asarray(index, dtype=np.int64), [len(p) for p in parts])
+        return cells[:, 0], cells[:, 1], owner
