@@ -32,6 +32,25 @@ def conv_output_side(window: int) -> int:
     return (side - 4) // 2 + 1  # 4x4, stride 2
 
 
+def check_window(window: int) -> None:
+    """The paper's convolutions need a window of at least 8 cells."""
+    if conv_output_side(window) < 1:
+        raise ValueError(f"window {window} is too small for the network: F must be >= 8")
+
+
+def paper_convolutions(channels: int) -> nn.Sequential:
+    """The paper's three convolutions on the (3, F, F) window, flattened."""
+    return nn.Sequential(
+        nn.Conv2d(3, channels, 3, padding=1),
+        nn.ReLU(),
+        nn.Conv2d(channels, channels, 4, stride=1),
+        nn.ReLU(),
+        nn.Conv2d(channels, channels, 4, stride=2),
+        nn.ReLU(),
+        nn.Flatten(),
+    )
+
+
 class QNetwork(nn.Module):
     """The paper's network on its (3, F, F) observation."""
 
@@ -41,19 +60,10 @@ class QNetwork(nn.Module):
 
     def __init__(self, window: int = 20, n_actions: int = 5, channels: int = 20, hidden: int = 64):
         super().__init__()
-        if conv_output_side(window) < 1:
-            raise ValueError(f"window {window} is too small for the network: F must be >= 8")
+        check_window(window)
         self.window = window
         side = conv_output_side(window)
-        self.features = nn.Sequential(
-            nn.Conv2d(3, channels, 3, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=1),
-            nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=2),
-            nn.ReLU(),
-            nn.Flatten(),
-        )
+        self.features = paper_convolutions(channels)
         self.head = nn.Sequential(nn.Linear(channels * side * side, hidden), nn.ReLU(), nn.Linear(hidden, n_actions))
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
@@ -75,19 +85,10 @@ class GlobalLocalQNetwork(nn.Module):
         self, window: int = 20, n_actions: int = 5, channels: int = 20, global_channels: int = 16, hidden: int = 128
     ):
         super().__init__()
-        if conv_output_side(window) < 1:
-            raise ValueError(f"window {window} is too small for the network: F must be >= 8")
+        check_window(window)
         self.window = window
         side = conv_output_side(window)
-        self.local = nn.Sequential(
-            nn.Conv2d(3, channels, 3, padding=1),
-            nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=1),
-            nn.ReLU(),
-            nn.Conv2d(channels, channels, 4, stride=2),
-            nn.ReLU(),
-            nn.Flatten(),
-        )
+        self.local = paper_convolutions(channels)
         g = ((window + 1) // 2 + 1) // 2  # two 3x3 stride-2 convolutions with padding 1 halve it, rounding up
         self.whole = nn.Sequential(
             nn.Conv2d(4, global_channels, 3, padding=1),
