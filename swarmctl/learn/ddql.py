@@ -183,10 +183,10 @@ def gradient_step(
     on one thread (CPU time, 2-core AMD EPYC, busy): torch.compile (inductor) of the loss, 39-49 ms a
     step against eager's 42-49 after 149 s of compiling; onnxruntime for the no-grad forwards, as
     fast as torch's channels-last ones at 64 rows (9.4 against 9.5 ms); RAdam(foreach=True), 0.4 ms
-    less a step but other bits (1e-4 apart after 50 steps). The step is the oneDNN convolutions'
-    time: per 64 rows 6.0 ms forward, 13.5 ms backward (conv2 alone 4.1 forward, 4.9 + 4.6 backward
-    for data and weights); with the acting forward that is ~33 ms of convolutions a joint step of the
-    bench's setting, whose FLOP ceiling is ~20 ms."""
+    less a step but other bits (1e-4 apart after 50 steps; 0.18 ms in a later measurement). The step
+    is the oneDNN convolutions' time: per 64 rows about 5.4 ms forward with the ReLUs fused (conv2
+    3.9), 12.5 ms backward (conv2 5.0 + 4.5 for data and weights); with the acting forward that is
+    ~30 ms of convolutions a joint step of the bench's setting, whose FLOP ceiling is ~19 ms."""
     o, a, r, o2 = batch
     with torch.no_grad():
         if cfg.double:
