@@ -116,7 +116,9 @@ def fuse_conv_relu(net: nn.Module) -> nn.Module:
 
 def twin_forward(online: nn.Module, target: nn.Module, obs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Q-values of two networks of the paper's architecture on the same observations, without
-    gradients, in one pass; other networks are called one after the other."""
+    gradients, in one pass; other networks are called one after the other. Bit for bit the two
+    calls' numbers where conv_relu is one primitive (the trainer's CPU networks, channels-last);
+    elsewhere (a GPU) the grouped convolutions may round differently."""
     if not (isinstance(online, QNetwork) and isinstance(target, QNetwork)):
         return online(obs), target(obs)
     x = obs
