@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from swarmctl.errors import InputError, ScenarioError
 from swarmctl.learn.curriculum import CURRICULA, Curriculum, held_out_worlds
+from swarmctl.learn.kernels import fuse_conv_relu, keep_freed_memory, twin_forward
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy.base import allowed_moves, softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, model_reference, save_checkpoint
@@ -176,21 +177,21 @@ def gradient_step(
     """One double-DQN gradient step on a minibatch (o, a, r, o'); returns the loss (a tensor on the
     device, not read here).
 
-    Fusing the forwards was measured and not taken: the online network on o and o' in one call of
-    2 x 64 rows costs 1.6x the separate calls (the backward then runs over the o' rows too), and the
-    online and target networks on o' in one vmapped call gained nothing over two calls. Nor were,
+    The online and target networks' forwards on o' are one pass (learn.kernels.twin_forward, the same
+    numbers). The online network on o and o' in one call of 2 x 64 rows was measured and not taken:
+    1.6x the separate calls (the backward then runs over the o' rows too). Nor were,
     on one thread (CPU time, 2-core AMD EPYC, busy): torch.compile (inductor) of the loss, 39-49 ms a
     step against eager's 42-49 after 149 s of compiling; onnxruntime for the no-grad forwards, as
     fast as torch's channels-last ones at 64 rows (9.4 against 9.5 ms); RAdam(foreach=True), 0.4 ms
-    less a step but other bits (1e-4 apart after 50 steps). The step is the oneDNN convolutions'
-    time: per 64 rows 6.0 ms forward, 13.5 ms backward (conv2 alone 4.1 forward, 4.9 + 4.6 backward
-    for data and weights); with the acting forward that is ~33 ms of convolutions a joint step of the
-    bench's setting, whose FLOP ceiling is ~20 ms."""
+    less a step but other bits (1e-4 apart after 50 steps; 0.18 ms in a later measurement). The step
+    is the oneDNN convolutions' time: per 64 rows about 5.4 ms forward with the ReLUs fused (conv2
+    3.9), 12.5 ms backward (conv2 5.0 + 4.5 for data and weights); with the acting forward that is
+    ~30 ms of convolutions a joint step of the bench's setting, whose FLOP ceiling is ~19 ms."""
     o, a, r, o2 = batch
     with torch.no_grad():
         if cfg.double:
-            next_a = q_net(o2).argmax(dim=1, keepdim=True)
-            next_q = target_net(o2).gather(1, next_a).squeeze(1)
+            online_q, target_q = twin_forward(q_net, target_net, o2)
+            next_q = target_q.gather(1, online_q.argmax(dim=1, keepdim=True)).squeeze(1)
         else:
             next_q = target_net(o2).max(dim=1).values
         td_target = r + cfg.gamma * next_q  # truncation, never terminal: always bootstrap
@@ -268,7 +269,10 @@ def train(
     else:
         q_net, init_info = make_network(world.variant, world.window), None
     # channels-last activations: oneDNN's convolutions run a gradient step 1.4x faster in that layout
-    q_net.to(dev, memory_format=LAYOUT)
+    # and each convolution with its ReLU in one primitive, without page faults on every gradient step's
+    # activations (learn.kernels)
+    fuse_conv_relu(q_net.to(dev, memory_format=LAYOUT))
+    keep_freed_memory()
     target_net = copy.deepcopy(q_net).to(dev, memory_format=LAYOUT)
     optimizer = torch.optim.RAdam(q_net.parameters(), lr=cfg.lr)
     obs_shape = (VARIANT_CHANNELS[world.variant], world.window, world.window)
