@@ -45,6 +45,15 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     hover: a decider that hovers on a target may only stay, and any other may not stay. mask: no move
     off the map or into a cell the decider knows to be blocked (an obstacle, or a vehicle hovering on
     a target). A decider left with no move at all may stay."""
+    crews = beliefs.crews
+    if crews is not None:
+        return _allowed_few(beliefs, crews, hover, mask)
+    return _allowed_batched(beliefs, hover, mask)
+
+
+def _allowed_batched(beliefs: Beliefs, hover: bool, mask: bool) -> np.ndarray:
+    """allowed_moves in numpy calls whose number does not grow with the batch (the reference
+    _allowed_few is tested against)."""
     b, u = beliefs.batch, beliefs.deciders
     if mask:
         w, h = beliefs.width, beliefs.height
@@ -69,6 +78,43 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     if not _all(some, axis=None):
         allowed[..., STAY] |= ~some
     return allowed
+
+
+_STEPS = [tuple(d) for d in MOVES.tolist()]
+
+
+def _allowed_few(beliefs: Beliefs, crews: list, hover: bool, mask: bool) -> np.ndarray:
+    """allowed_moves for a few deciders, from Beliefs.crews (Python ints): the same rules."""
+    w, h = beliefs.width, beliefs.height
+    size = w * h
+    obstacles = beliefs.obstacles.reshape(-1) if mask and beliefs.any_obstacle else None
+    rows = []
+    for i, ((x, y), here, known) in enumerate(crews):
+        if hover and here:
+            rows.append(_STAY_ONLY_ROW)
+            continue
+        if mask:
+            held = {(hx, hy) for hx, hy, hovers in known if hovers}
+            row = []
+            for dx, dy in _STEPS:
+                nx, ny = x + dx, y + dy
+                row.append(
+                    0 <= nx < w
+                    and 0 <= ny < h
+                    and (obstacles is None or not obstacles[i * size + nx * h + ny])
+                    and (nx, ny) not in held
+                )
+        else:
+            row = [True] * len(_STEPS)
+        if hover:
+            row[STAY] = False
+        if not any(row):
+            row[STAY] = True
+        rows.append(row)
+    return np.array(rows, dtype=bool).reshape(beliefs.batch, beliefs.deciders, len(_STEPS))
+
+
+_STAY_ONLY_ROW = _STAY_ONLY.tolist()
 
 
 def softmax_sample(q: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
