@@ -14,12 +14,13 @@ swarmctl.policy.draws, keyed by (seed, episode, step, vehicle), so a batch's siz
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
 
 from swarmctl.world.beliefs import Beliefs
-from swarmctl.world.moves import MOVES, STAY, block_starts, move_table
+from swarmctl.world.moves import MOVES, N_ACTIONS, STAY, block_starts, move_table
 
 
 class Policy(Protocol):
@@ -80,13 +81,17 @@ def _allowed_batched(beliefs: Beliefs, hover: bool, mask: bool) -> np.ndarray:
     return allowed
 
 
-_STEPS = [tuple(d) for d in MOVES.tolist()]
+@lru_cache(maxsize=16)
+def _destinations(width: int, height: int) -> list[list[int]]:
+    """move_table as Python lists: per flat cell, the flat cell of each move, -1 off the map."""
+    return move_table(width, height).tolist()
 
 
 def _allowed_few(beliefs: Beliefs, crews: list, hover: bool, mask: bool) -> np.ndarray:
     """allowed_moves for a few deciders, from Beliefs.crews (Python ints): the same rules."""
-    w, h = beliefs.width, beliefs.height
-    size = w * h
+    h = beliefs.height
+    size = beliefs.width * h
+    table = _destinations(beliefs.width, h)
     obstacles = beliefs.obstacles.reshape(-1) if mask and beliefs.any_obstacle else None
     rows = []
     for i, ((x, y), here, known) in enumerate(crews):
@@ -94,24 +99,20 @@ def _allowed_few(beliefs: Beliefs, crews: list, hover: bool, mask: bool) -> np.n
             rows.append(_STAY_ONLY_ROW)
             continue
         if mask:
-            held = {(hx, hy) for hx, hy, hovers in known if hovers}
-            row = []
-            for dx, dy in _STEPS:
-                nx, ny = x + dx, y + dy
-                row.append(
-                    0 <= nx < w
-                    and 0 <= ny < h
-                    and (obstacles is None or not obstacles[i * size + nx * h + ny])
-                    and (nx, ny) not in held
-                )
+            row = [c >= 0 for c in table[x * h + y]]
+            held = [hx * h + hy for hx, hy, hovers in known if hovers]
+            if held or obstacles is not None:
+                for a, c in enumerate(table[x * h + y]):
+                    if row[a] and (c in held or (obstacles is not None and obstacles[i * size + c])):
+                        row[a] = False
         else:
-            row = [True] * len(_STEPS)
+            row = [True] * N_ACTIONS
         if hover:
             row[STAY] = False
         if not any(row):
             row[STAY] = True
         rows.append(row)
-    return np.array(rows, dtype=bool).reshape(beliefs.batch, beliefs.deciders, len(_STEPS))
+    return np.array(rows, dtype=bool).reshape(beliefs.batch, beliefs.deciders, N_ACTIONS)
 
 
 _STAY_ONLY_ROW = _STAY_ONLY.tolist()

@@ -34,7 +34,7 @@ def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
     value = beliefs.value_channel(remove_taken)
     crews = beliefs.crews
     if crews is not None:
-        return _build_few(value, [(own, [(x, y) for x, y, _ in known]) for own, _, known in crews], s.window, s.rho)
+        return _build_few(value, crews, s.window, s.rho)
     return _build_batched(value, beliefs.pos, beliefs.positions, beliefs.others, s.window, s.rho)
 
 
@@ -52,10 +52,10 @@ def build_observations(
     them: a fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
     if positions.size <= 2 * SMALL:
         n = pos.shape[0] * pos.shape[1]
-        own, rows = pos.reshape(n, 2).tolist(), positions.reshape(n, -1, 2).tolist()
+        own, rows = pos.reshape(n, 2).tolist(), positions.reshape(n, -1, 2).tolist()  # (x, y) lists
         known = others.reshape(n, -1).tolist()
-        cells = [((x, y), [tuple(c) for c, k in zip(row, seen) if k]) for (x, y), row, seen in zip(own, rows, known)]
-        return _build_few(value, cells, window, rho)
+        crews = [(xy, False, [(*c, False) for c, k in zip(row, m) if k]) for xy, row, m in zip(own, rows, known)]
+        return _build_few(value, crews, window, rho)
     return _build_batched(value, pos, positions, others, window, rho)
 
 
@@ -70,11 +70,10 @@ def _padded(value: np.ndarray, window: int, rho: float) -> np.ndarray:
     return padded
 
 
-def _build_few(
-    value: np.ndarray, cells: list[tuple[tuple[int, int], list[tuple[int, int]]]], window: int, rho: float
-) -> np.ndarray:
-    """build_observations for a few deciders: `cells` holds, flat over (B, U), each decider's own cell
-    and the cells of the other vehicles it knows, as Python ints. Corners, the own cell and the
+def _build_few(value: np.ndarray, crews: list, window: int, rho: float) -> np.ndarray:
+    """build_observations for a few deciders: `crews` holds, flat over (B, U), each decider's own cell,
+    a flag unused here, and the (x, y, flag) of the other vehicles it knows, as Python ints (the form of
+    Beliefs.crews). Corners, the own cell and the
     vehicle counts are Python arithmetic, each written as a scalar; the window is a slice per decider."""
     b, u, w, h = value.shape
     f, n = window, b * u
@@ -90,13 +89,13 @@ def _build_few(
         padded = _padded(value, f, rho)
     limit_x, limit_y = max(w - f, 0), max(h - f, 0)
     flat = obs.reshape(-1)  # a few cells: one scalar write each is cheaper than one scatter
-    for i, ((x, y), seen) in enumerate(cells):
+    for i, ((x, y), _, seen) in enumerate(crews):
         cx, cy = min(max(x - f // 2, 0), limit_x), min(max(y - f // 2, 0), limit_y)
         if not covers:
             obs[i, 2] = padded[i, cx : cx + f, cy : cy + f]
         base = i * 3 * ff
         flat[base + (x - cx) * f + (y - cy)] = 1.0
-        for ox, oy in seen:
+        for ox, oy, _ in seen:
             rx, ry = ox - cx, oy - cy
             if covers or (0 <= rx < f and 0 <= ry < f):
                 flat[base + ff + rx * f + ry] += 1.0
