@@ -89,6 +89,7 @@ class Beliefs:
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
         self._maps = {"phi_hat": phi_hat, "obstacles": obstacles, "targets": targets, "value": value}
+        self._ready: dict[str, np.ndarray] = {}  # the maps computed and checked already
         for name, given in self._maps.items():
             if given is not None and not callable(given):
                 self._map(name)  # check it now
@@ -116,14 +117,17 @@ class Beliefs:
                 raise ValueError("beliefs: every decider must know its own cell")
 
     def _map(self, name: str) -> np.ndarray:
-        """A grid-sized field, computed (once) if it was given as a callable, and checked."""
+        """A grid-sized field, computed (once) if it was given as a callable, and checked (once)."""
+        ready = self._ready.get(name)
+        if ready is not None:
+            return ready
         given = self._maps[name]
         if callable(given):
             given = given()
         arr = np.asarray(given, dtype=self._MAPS[name])
         if arr.shape != self.explored.shape:
             raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {self.explored.shape}")
-        self._maps[name] = arr
+        self._maps[name] = self._ready[name] = arr
         return arr
 
     @property
@@ -310,9 +314,10 @@ class Beliefs:
         """The same beliefs under other observation settings (e.g. another variant); arrays are shared."""
         other = copy.copy(self)
         other.settings = replace(self.settings, **changes)
-        other._maps = dict(self._maps)
+        other._maps, other._ready = dict(self._maps), dict(self._ready)
         if "rho" in changes:  # the value channel depends on it
             other._maps["value"] = None
+            other._ready.pop("value", None)
         return other
 
     def select(self, batches: np.ndarray) -> Beliefs:
