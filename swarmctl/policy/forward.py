@@ -81,7 +81,8 @@ def export_onnx(net: QNetwork, key: str | None = None) -> bytes:
 
 
 class OnnxForward:
-    """The network exported to ONNX and run by onnxruntime on torch's intra-op thread count."""
+    """The network exported to ONNX and run by onnxruntime on torch's intra-op thread count. Small calls
+    share a kept output buffer, so one instance serves one thread at a time (as every caller here does)."""
 
     name = "onnx"
 
