@@ -14,12 +14,13 @@ swarmctl.policy.draws, keyed by (seed, episode, step, vehicle), so a batch's siz
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
 
 from swarmctl.world.beliefs import Beliefs
-from swarmctl.world.moves import MOVES, STAY, block_starts, move_table
+from swarmctl.world.moves import MOVES, N_ACTIONS, STAY, block_starts, move_table
 
 
 class Policy(Protocol):
@@ -45,6 +46,15 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     hover: a decider that hovers on a target may only stay, and any other may not stay. mask: no move
     off the map or into a cell the decider knows to be blocked (an obstacle, or a vehicle hovering on
     a target). A decider left with no move at all may stay."""
+    crews = beliefs.crews
+    if crews is not None:
+        return _allowed_few(beliefs, crews, hover, mask)
+    return _allowed_batched(beliefs, hover, mask)
+
+
+def _allowed_batched(beliefs: Beliefs, hover: bool, mask: bool) -> np.ndarray:
+    """allowed_moves in numpy calls whose number does not grow with the batch (the reference
+    _allowed_few is tested against)."""
     b, u = beliefs.batch, beliefs.deciders
     if mask:
         w, h = beliefs.width, beliefs.height
@@ -69,6 +79,43 @@ def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np
     if not _all(some, axis=None):
         allowed[..., STAY] |= ~some
     return allowed
+
+
+@lru_cache(maxsize=16)
+def _destinations(width: int, height: int) -> list[list[int]]:
+    """move_table as Python lists: per flat cell, the flat cell of each move, -1 off the map."""
+    return move_table(width, height).tolist()
+
+
+def _allowed_few(beliefs: Beliefs, crews: list, hover: bool, mask: bool) -> np.ndarray:
+    """allowed_moves for a few deciders, from Beliefs.crews (Python ints): the same rules."""
+    h = beliefs.height
+    size = beliefs.width * h
+    table = _destinations(beliefs.width, h)
+    obstacles = beliefs.obstacles.reshape(-1) if mask and beliefs.any_obstacle else None
+    rows = []
+    for i, ((x, y), here, known) in enumerate(crews):
+        if hover and here:
+            rows.append(_STAY_ONLY_ROW)
+            continue
+        if mask:
+            row = [c >= 0 for c in table[x * h + y]]
+            held = [hx * h + hy for hx, hy, hovers in known if hovers]
+            if held or obstacles is not None:
+                for a, c in enumerate(table[x * h + y]):
+                    if row[a] and (c in held or (obstacles is not None and obstacles[i * size + c])):
+                        row[a] = False
+        else:
+            row = [True] * N_ACTIONS
+        if hover:
+            row[STAY] = False
+        if not any(row):
+            row[STAY] = True
+        rows.append(row)
+    return np.array(rows, dtype=bool).reshape(beliefs.batch, beliefs.deciders, N_ACTIONS)
+
+
+_STAY_ONLY_ROW = _STAY_ONLY.tolist()
 
 
 def softmax_sample(q: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:

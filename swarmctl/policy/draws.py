@@ -109,14 +109,24 @@ def _uniform_small(seed: int, episodes: np.ndarray, step: int, vehicles: np.ndar
     return (np.array(bits, dtype=np.float64) * (1.0 / (1 << 53))).reshape(*kshape, *shape)
 
 
+@lru_cache(maxsize=1024)
+def _episode_key(seed: int, episode: int) -> int:
+    """The key folded up to the episode (the step comes next)."""
+    return _mix_int(_seed_key(seed) + _G + (episode & _MASK))
+
+
+_UNIT = 1.0 / (1 << 53)
+
+
 def _one_each_small(seed: int, episodes: np.ndarray, step: int, me: np.ndarray, stream: int) -> np.ndarray:
-    """uniform(seed, episodes, step, me, stream) for me (B, U) with a few elements: the same bits."""
-    head, at_step, tail = _seed_key(seed), _G + (step & _MASK), _G + (stream & _MASK)
-    bits = []
+    """uniform(seed, episodes, step, me, stream) for me (B, U) with a few elements: the same bits (a
+    53-bit integer times 2^-53 is exact in a Python float as in numpy)."""
+    at_step, tail = _G + (step & _MASK), _G + (stream & _MASK)
+    out = []
     for e, row in zip(episodes.tolist(), me.tolist()):
-        k = _mix_int(_mix_int(head + _G + (e & _MASK)) + at_step)
-        bits.extend(_mix_int(_mix_int(_mix_int(k + _G + (v & _MASK)) + tail)) >> 11 for v in row)
-    return (np.array(bits, dtype=np.float64) * (1.0 / (1 << 53))).reshape(me.shape)
+        k = _mix_int(_episode_key(seed, e) + at_step)
+        out.extend((_mix_int(_mix_int(_mix_int(k + _G + (v & _MASK)) + tail)) >> 11) * _UNIT for v in row)
+    return np.array(out, dtype=np.float64).reshape(me.shape)
 
 
 class Draws:

@@ -27,6 +27,7 @@ from swarmctl.policy.qnet import QNetwork
 BACKENDS = ("auto", "torch", "onnx")
 CHUNK = 64  # rows per forward call (one thread, 1,024 rows: torch 120 us a row in chunks of 64, 194 in
 #              chunks of 256, 243 unchunked; onnxruntime 94-101 from 64 to 1,024)
+SMALL_ROWS = 16  # up to this many rows a call runs on a kept output binding (OnnxForward._run_bound)
 _EXPORTED: dict[str, bytes] = {}  # ONNX models by weights hash: one export per network per process
 
 
@@ -80,7 +81,8 @@ def export_onnx(net: QNetwork, key: str | None = None) -> bytes:
 
 
 class OnnxForward:
-    """The network exported to ONNX and run by onnxruntime on torch's intra-op thread count."""
+    """The network exported to ONNX and run by onnxruntime on torch's intra-op thread count. Small calls
+    share a kept output buffer, so one instance serves one thread at a time (as every caller here does)."""
 
     name = "onnx"
 
@@ -95,10 +97,28 @@ class OnnxForward:
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting threads
         self.session = ort.InferenceSession(export_onnx(net, key), options, providers=["CPUExecutionProvider"])
         self.chunk = chunk
+        self._bound: dict[int, tuple] = {}  # rows -> (binding, output buffer), for the small calls
+
+    def _run_bound(self, x: np.ndarray) -> np.ndarray:
+        """One call of up to SMALL_ROWS rows with the output bound to a buffer kept for that row count
+        (the same session, so the same bits as session.run, without its per-call checks and output
+        allocation)."""
+        bound = self._bound.get(len(x))
+        if bound is None:
+            out = np.empty((len(x), self.session.get_outputs()[0].shape[1]), dtype=np.float32)
+            binding = self.session.io_binding()
+            binding.bind_output("q", "cpu", 0, np.float32, list(out.shape), out.ctypes.data)
+            bound = self._bound[len(x)] = (binding, out)
+        binding, out = bound
+        binding.bind_cpu_input("obs", x)
+        self.session.run_with_iobinding(binding)
+        return out.copy()
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Q-values (N, 5) for observations (N, 3, F, F)."""
         x = np.ascontiguousarray(obs, dtype=np.float32)
+        if len(x) <= SMALL_ROWS:
+            return self._run_bound(x)
         run = lambda part: self.session.run(None, {"obs": part})[0]
         if len(x) <= self.chunk:
             return run(x)

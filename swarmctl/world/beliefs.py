@@ -26,6 +26,8 @@ import numpy as np
 from swarmctl.world.moves import block_starts
 from swarmctl.world.taken import remove_taken_targets
 
+SMALL = 16  # deciders x vehicles up to which the decision rules read the swarm as Python ints (Beliefs.crews)
+
 PAPER_VARIANT = "venturini2021"  # the paper's F x F, 3-channel observation
 GLOBAL_LOCAL_VARIANT = "global-local-v1"  # the paper's window + the whole map pooled (world.observe_global)
 VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7}  # observation channels of each variant
@@ -87,6 +89,7 @@ class Beliefs:
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
         self._maps = {"phi_hat": phi_hat, "obstacles": obstacles, "targets": targets, "value": value}
+        self._ready: dict[str, np.ndarray] = {}  # the maps computed and checked already
         for name, given in self._maps.items():
             if given is not None and not callable(given):
                 self._map(name)  # check it now
@@ -114,14 +117,17 @@ class Beliefs:
                 raise ValueError("beliefs: every decider must know its own cell")
 
     def _map(self, name: str) -> np.ndarray:
-        """A grid-sized field, computed (once) if it was given as a callable, and checked."""
+        """A grid-sized field, computed (once) if it was given as a callable, and checked (once)."""
+        ready = self._ready.get(name)
+        if ready is not None:
+            return ready
         given = self._maps[name]
         if callable(given):
             given = given()
         arr = np.asarray(given, dtype=self._MAPS[name])
         if arr.shape != self.explored.shape:
             raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {self.explored.shape}")
-        self._maps[name] = arr
+        self._maps[name] = self._ready[name] = arr
         return arr
 
     @property
@@ -179,6 +185,25 @@ class Beliefs:
         return (self.positions[..., 0] >= 0) & (n[None, None, :] != self.me[..., None])
 
     @cached_property
+    def crews(self) -> list[tuple[tuple[int, int], bool, list[tuple[int, int, bool]]]] | None:
+        """For a few deciders (B x U x N <= SMALL), flat over (B, U): each decider's own cell, whether
+        it hovers, and the (x, y, hovering) of each other vehicle whose position it knows (`others`),
+        as Python ints; None for more. At batch 1 a numpy call costs more than the arithmetic, so the
+        decision rules and the observation's vehicle channels read these (same results)."""
+        b, u, n, _ = self.positions.shape
+        if b * u * n > SMALL:
+            return None
+        crews = []
+        for row, hover, me in zip(
+            self.positions.reshape(b * u, n, 2).tolist(),
+            self.hovering.reshape(b * u, n).tolist(),
+            self.me.reshape(-1).tolist(),
+        ):
+            known = [(x, y, hv) for i, ((x, y), hv) in enumerate(zip(row, hover)) if i != me and x >= 0]
+            crews.append((tuple(row[me]), hover[me], known))
+        return crews
+
+    @cached_property
     def hovering_self(self) -> np.ndarray:
         """(B, U) bool: the decider hovers on a target (it stays there)."""
         bi, ui = self._rows
@@ -226,9 +251,16 @@ class Beliefs:
     def any_taken(self) -> bool:
         """Whether any decider believes another vehicle sits on a target it knows (a gather at the
         others' cells, without building the grid-sized maps)."""
+        b, u, w, h = self.explored.shape
+        crews = self.crews
+        if crews is not None:
+            if not any(known for _, _, known in crews):
+                return False
+            targets, size = self.targets.reshape(-1), w * h
+            cells = (i * size + x * h + y for i, (_, _, known) in enumerate(crews) for x, y, _ in known)
+            return any(bool(targets[c]) for c in cells)
         if not np.logical_or.reduce(self.others, axis=None):
             return False
-        b, u, w, h = self.explored.shape
         rows = block_starts(b * u, w * h).reshape(b, u, 1)
         # an unknown position (-1, -1) reads some other cell here: `others` leaves it out
         cells = self.targets.reshape(-1)[rows + self.positions[..., 0] * h + self.positions[..., 1]]
@@ -237,6 +269,8 @@ class Beliefs:
     @cached_property
     def any_obstacle(self) -> bool:
         """Whether any decider knows of an obstacle."""
+        if self.crews is not None:  # a few maps: count_nonzero is the cheaper call there, reduce beyond
+            return bool(np.count_nonzero(self.obstacles))
         return bool(np.logical_or.reduce(self.obstacles, axis=None))
 
     def phi_without_taken(self) -> np.ndarray:
@@ -280,9 +314,10 @@ class Beliefs:
         """The same beliefs under other observation settings (e.g. another variant); arrays are shared."""
         other = copy.copy(self)
         other.settings = replace(self.settings, **changes)
-        other._maps = dict(self._maps)
+        other._maps, other._ready = dict(self._maps), dict(self._ready)
         if "rho" in changes:  # the value channel depends on it
             other._maps["value"] = None
+            other._ready.pop("value", None)
         return other
 
     def select(self, batches: np.ndarray) -> Beliefs:

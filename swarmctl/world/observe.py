@@ -16,7 +16,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs
+from swarmctl.world.beliefs import PAPER_VARIANT, SMALL, Beliefs
 from swarmctl.world.moves import block_starts
 
 FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
@@ -31,9 +31,11 @@ def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
         from swarmctl.world.observe_global import observe_global_local
 
         return observe_global_local(beliefs, remove_taken)
-    return build_observations(
-        beliefs.value_channel(remove_taken), beliefs.pos, beliefs.positions, beliefs.others, s.window, s.rho
-    )
+    value = beliefs.value_channel(remove_taken)
+    crews = beliefs.crews
+    if crews is not None:
+        return _build_few(value, crews, s.window, s.rho)
+    return _build_batched(value, beliefs.pos, beliefs.positions, beliefs.others, s.window, s.rho)
 
 
 def build_observations(
@@ -45,8 +47,66 @@ def build_observations(
     each decider believes each vehicle is; others (B, U, N) bool: which of them enter the vehicle
     channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32.
 
-    The vehicle counts are scattered with flat indices, and so is the window for up to FEW of them: a
-    fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
+    For up to SMALL deciders x vehicles the vehicle channels are set from Python ints (_build_few);
+    beyond, the vehicle counts are scattered with flat indices, and so is the window for up to FEW of
+    them: a fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
+    if positions.size <= 2 * SMALL:
+        n = pos.shape[0] * pos.shape[1]
+        own, rows = pos.reshape(n, 2).tolist(), positions.reshape(n, -1, 2).tolist()  # (x, y) lists
+        known = others.reshape(n, -1).tolist()
+        crews = [(xy, False, [(*c, False) for c, k in zip(row, m) if k]) for xy, row, m in zip(own, rows, known)]
+        return _build_few(value, crews, window, rho)
+    return _build_batched(value, pos, positions, others, window, rho)
+
+
+def _padded(value: np.ndarray, window: int, rho: float) -> np.ndarray:
+    """(B * U, max(W, F), max(H, F)) value channels, the cells beyond a map shorter than F read -rho."""
+    b, u, w, h = value.shape
+    pw, ph = max(w, window), max(h, window)
+    if (pw, ph) == (w, h):
+        return value.reshape(b * u, w, h)
+    padded = np.full((b * u, pw, ph), -rho, dtype=np.float32)
+    padded[:, :w, :h] = value.reshape(b * u, w, h)
+    return padded
+
+
+def _build_few(value: np.ndarray, crews: list, window: int, rho: float) -> np.ndarray:
+    """build_observations for a few deciders: `crews` holds, flat over (B, U), each decider's own cell,
+    a flag unused here, and the (x, y, flag) of the other vehicles it knows, as Python ints (the form of
+    Beliefs.crews). Corners, the own cell and the
+    vehicle counts are Python arithmetic, each written as a scalar; the window is a slice per decider."""
+    b, u, w, h = value.shape
+    f, n = window, b * u
+    ff = f * f
+    obs = np.zeros((n, 3, f, f), dtype=np.float32)
+    covers = w <= f and h <= f  # one window covers the map: every corner is (0, 0)
+    if w == f and h == f:
+        obs[:, 2] = value.reshape(n, w, h)
+    elif covers:
+        obs[:, 2] = -rho
+        obs[:, 2, :w, :h] = value.reshape(n, w, h)
+    else:
+        padded = _padded(value, f, rho)
+    limit_x, limit_y = max(w - f, 0), max(h - f, 0)
+    flat = obs.reshape(-1)  # a few cells: one scalar write each is cheaper than one scatter
+    for i, ((x, y), _, seen) in enumerate(crews):
+        cx, cy = min(max(x - f // 2, 0), limit_x), min(max(y - f // 2, 0), limit_y)
+        if not covers:
+            obs[i, 2] = padded[i, cx : cx + f, cy : cy + f]
+        base = i * 3 * ff
+        flat[base + (x - cx) * f + (y - cy)] = 1.0
+        for ox, oy, _ in seen:
+            rx, ry = ox - cx, oy - cy
+            if covers or (0 <= rx < f and 0 <= ry < f):
+                flat[base + ff + rx * f + ry] += 1.0
+    return obs.reshape(b, u, 3, f, f)
+
+
+def _build_batched(
+    value: np.ndarray, pos: np.ndarray, positions: np.ndarray, others: np.ndarray, window: int, rho: float
+) -> np.ndarray:
+    """build_observations in numpy calls whose number does not grow with the batch (the reference
+    _build_few is tested against)."""
     b, u, w, h = value.shape
     f = window
     n = b * u
@@ -62,12 +122,8 @@ def build_observations(
         rel, visible = positions.reshape(n, -1, 2), others.reshape(n, -1)
     else:
         corner = np.minimum(np.maximum(pos - f // 2, 0), _corner_limit(w, h, f))  # ufuncs: no np.clip wrapper
-        pw, ph = max(w, f), max(h, f)
-        if (pw, ph) != (w, h):
-            padded = np.full((n, pw, ph), -rho, dtype=np.float32)
-            padded[:, :w, :h] = value.reshape(n, w, h)
-        else:
-            padded = value
+        padded = _padded(value, f, rho)
+        pw, ph = padded.shape[1:]
         if n <= FEW:  # one flat gather (a few numpy calls)
             start = block_starts(n, pw * ph) + corner[:, 0] * ph + corner[:, 1]
             np.take(padded.reshape(-1), start[:, None, None] + _crop_offsets(f, ph), out=obs[:, 2], mode="clip")
