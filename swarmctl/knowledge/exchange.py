@@ -152,7 +152,7 @@ class KnowledgeExchange:
     def _send(self, message, repair: bool = False, answering: int | None = None) -> None:
         """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus. An
         answer to vehicle `answering`'s digest or request goes out only as far as its budget allows."""
-        for payload_type, payload in self.codec.encode(message, repair):
+        for payload_type, payload, part in self.codec.encode_parts(message, repair):
             frame = self.codec.frame(payload_type, payload)
             if answering is not None and not self.budget.spend(answering, len(frame)):
                 self.stats["withheld"] += 1  # the rest of the answer waits for the next period
@@ -160,7 +160,7 @@ class KnowledgeExchange:
             if self.bus is not None:
                 if self.outlet is not None and self.outlet(frame):
                     self.stats["link_packets"] += 1  # on the vehicle's own MAVLink link
-                self.bus.publish(self, payload_type, payload, len(frame))
+                self.bus.publish(self, payload_type, payload, len(frame), part)
             else:
                 try:
                     self.sock.sendto(frame, self.peer)
