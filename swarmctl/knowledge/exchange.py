@@ -104,6 +104,7 @@ class KnowledgeExchange:
         self._now = 0  # the latest step given to `step`/`publish`
         self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
         self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
+        self._noted = np.zeros((knowledge.width, knowledge.height), dtype=bool)  # _learned_at != NEVER
         self.system_id = knowledge.vehicle_id + 1 if system_id is None else int(system_id)
         self.codec = KnowledgeCodec(
             mission_id, knowledge.width, knowledge.height, system_id=self.system_id, signing_key=signing_key
@@ -220,8 +221,10 @@ class KnowledgeExchange:
 
     def _note_learned(self, step: int) -> None:
         """Remember when each cell became known (for the push rule)."""
-        fresh = self.knowledge.explored & (self._learned_at == NEVER)
-        self._learned_at[fresh] = step
+        fresh = self.knowledge.explored > self._noted  # explored, not noted yet
+        if fresh.any():
+            self._learned_at[fresh] = step
+            self._noted |= fresh
 
     def publish_digest(self) -> None:
         """Broadcast the explored-cell digest now (all chunks) and, if any, the targets this vehicle
