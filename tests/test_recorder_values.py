@@ -14,19 +14,17 @@ from swarmctl.mission.recorder import _jsonable
 
 
 def _rules(value):
-    if isinstance(value, dict):
-        return {str(k): _rules(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_rules(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _rules(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, float):
-        return round(value, 6)
-    if isinstance(value, Path):
-        return str(value)
-    return value
+    """The rules, written as a lookup by the most specific kind (numpy scalars before floats: an
+    np.float64 is a float, and is written as it is)."""
+    kinds = [
+        (dict, lambda v: {str(k): _rules(x) for k, x in v.items()}),
+        ((list, tuple), lambda v: [_rules(x) for x in v]),
+        (np.ndarray, lambda v: _rules(v.tolist())),
+        (np.generic, lambda v: v.item()),
+        (float, lambda v: round(v, 6)),
+        (Path, str),
+    ]
+    return next((write(value) for kind, write in kinds if isinstance(value, kind)), value)
 
 
 atoms = st.one_of(
