@@ -135,9 +135,9 @@ class KnowledgeCodec:
     """Encode and decode the four knowledge payloads for one mission and grid.
 
     Payload level: `encode(message) -> [(payload_type, payload bytes)]`, `decode(payload_type, payload)`.
-    Wire level (real MAVLink 2 TUNNEL frames built and parsed by pymavlink): `frame(...)`,
-    `parse_datagram(bytes)`. Rejections are counted in `self.rejected`, accepted messages in
-    `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
+    Wire level (real MAVLink 2 TUNNEL frames, parsed by pymavlink and built as its pack builds them:
+    `pack_tunnel`): `frame(...)`, `parse_datagram(bytes)`. Rejections are counted in `self.rejected`,
+    accepted messages in `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
 
     def __init__(
         self,
