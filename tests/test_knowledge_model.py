@@ -213,3 +213,45 @@ def test_a_target_learnt_later_raises_the_value_of_cells_explored_before_it():
     # a reported phi above the known targets' value is kept (a detector's phi near unseen targets)
     k.sense(np.array([[0, 3]]), np.array([0.5]), np.array([False]))
     assert abs(k.value_channel(sigma2=2.0)[0, 3] - 0.5) <= 1 / 255
+
+
+@settings(max_examples=200)
+@given(
+    st.integers(1, 20),
+    st.integers(1, 20),
+    st.sampled_from([0.0, 1.0, 1.5, 2.0, 3.0, 4.2]),
+    st.data(),
+)
+def test_disc_cells_are_the_discs_cells_on_the_grid_in_the_offsets_order(w, h, fov, data):
+    """The footprint: every cell of the disc round `cell` that lies on the grid, in the simulator's
+    offsets order, whether the disc is whole or cut by the grid's edge."""
+    from swarmctl.world.scenario import fov_offsets
+
+    cell = (data.draw(st.integers(0, w - 1)), data.draw(st.integers(0, h - 1)))
+    every = np.asarray(cell) + fov_offsets(fov)
+    on_grid = every[(every[:, 0] >= 0) & (every[:, 0] < w) & (every[:, 1] >= 0) & (every[:, 1] < h)]
+    got = disc_cells(cell, w, h, fov)
+    assert got.dtype == np.int64 and np.array_equal(got, on_grid)
+    got[:] = -1  # a fresh array each time: the next caller's disc is untouched
+    assert np.array_equal(disc_cells(cell, w, h, fov), on_grid)
+
+
+@settings(max_examples=100)
+@given(st.lists(st.tuples(st.integers(0, W - 1), st.integers(0, H - 1)), max_size=12), st.data())
+def test_sense_counts_each_newly_explored_cell_once_and_queues_exactly_those(cells, data):
+    """Own sensing with repeated cells (a footprint and a detector's report overlap): the count is of
+    distinct new cells, and the next delta carries exactly them, in x, y order, with their max phi."""
+    k = Knowledge(W, H, vehicle_id=0)
+    k.set_position(1, (0, 0))
+    known = data.draw(st.lists(st.tuples(st.integers(0, W - 1), st.integers(0, H - 1)), max_size=6))
+    if known:
+        k.sense(known, np.zeros(len(known)), np.zeros(len(known), bool))
+        k.take_delta()
+    phi = np.array(data.draw(st.lists(st.floats(0, 1), min_size=len(cells), max_size=len(cells))))
+    new = sorted(set(cells) - set(known))
+    assert k.sense(cells, phi, np.zeros(len(cells), bool)) == len(new)
+    delta = k.take_delta()
+    assert [tuple(c) for c in delta.cells.tolist()] == new
+    for c, q in zip(delta.cells.tolist(), delta.phi):
+        assert q == max(quantise_phi(p) for p, s in zip(phi, cells) if s == tuple(c))
+    assert len(k.take_delta()) == 0

@@ -7,10 +7,11 @@
 When one process flies every vehicle (`swarmctl fly`, `swarmctl demo`) its agents share what they know
 here, in memory. An agent's exchange encodes each message once into its MAVLink 2 TUNNEL frames, hands
 the frames to its `outlet` (the agent's own vehicle link, so the recording and any onboard agent see
-them) and publishes each frame's payload on the bus, which decodes it once and delivers the message to
-every other member once (nothing is relayed, as on a radio). The message a receiver merges is exactly
-what the frame carries (quantised phi, chunks), so ground mode and the UDP knowledge channel of the
-onboard mode (`swarmctl agent`) feed the same merges.
+them) and publishes each frame's payload on the bus with the message it carries (what decoding the
+payload gives: KnowledgeCodec.encode_parts, pinned by the codec's tests; a payload published alone is
+decoded here), and the bus delivers that message to every other member once (nothing is relayed, as on
+a radio). The message a receiver merges is exactly what the frame carries (quantised phi, chunks), so
+ground mode and the UDP knowledge channel of the onboard mode (`swarmctl agent`) feed the same merges.
 
 Losses: with a `swarmctl.world.channel.Channel` (`"model"`, `"fixed"`, `"none"`) each frame from s to r
 is lost with `channel.loss_probability(distance in cells)`, the sender's cell taken from the frame's
@@ -116,15 +117,19 @@ class KnowledgeBus:
         self._batch.flush()
         return self._batch.handled.pop(member, 0)
 
-    def publish(self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int) -> int:
+    def publish(
+        self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int, message: Any = None
+    ) -> int:
         """One TUNNEL payload of `sender` (its frame `size` bytes long) to every other member, lost as the
-        channel says; returns how many members it reached."""
+        channel says; returns how many members it reached. `message`: what the payload decodes to, when
+        the sender has it (KnowledgeCodec.encode_parts); None: the payload is decoded here."""
         self.published += 1
         if self.ideal and payload_type not in IDEAL_KINDS:
             self.skipped += 1
             return 0
         assert self._codec is not None, "publish before join"
-        message = self._codec.decode(payload_type, payload)
+        if message is None:
+            message = self._codec.decode(payload_type, payload)
         if message is None:  # never for a member's own encoding; counted in the bus codec's rejections
             return 0
         if not self.trust.admit(message, sender.system_id):  # counted in trust.rejected, delivered to no one

@@ -44,6 +44,7 @@ is rejected, counted in `rejected` (a Counter by reason) and logged once per rea
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import struct
 import zlib
@@ -134,9 +135,9 @@ class KnowledgeCodec:
     """Encode and decode the four knowledge payloads for one mission and grid.
 
     Payload level: `encode(message) -> [(payload_type, payload bytes)]`, `decode(payload_type, payload)`.
-    Wire level (real MAVLink 2 TUNNEL frames built and parsed by pymavlink): `frame(...)`,
-    `parse_datagram(bytes)`. Rejections are counted in `self.rejected`, accepted messages in
-    `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
+    Wire level (real MAVLink 2 TUNNEL frames, parsed by pymavlink and built as its pack builds them:
+    `pack_tunnel`): `frame(...)`, `parse_datagram(bytes)`. Rejections are counted in `self.rejected`,
+    accepted messages in `self.accepted` (by kind), other MAVLink traffic in `self.ignored`."""
 
     def __init__(
         self,
@@ -199,36 +200,46 @@ class KnowledgeCodec:
 
     def encode(self, message: Message, repair: bool = False) -> list[tuple[int, bytes]]:
         """Payloads (payload_type, bytes <= 128) for one message; deltas and detections are chunked."""
+        return [(ptype, payload) for ptype, payload, _part in self.encode_parts(message, repair)]
+
+    def encode_parts(self, message: Message, repair: bool = False) -> list[tuple[int, bytes, Message]]:
+        """(payload_type, payload, the message the payload decodes to) for one message: `encode` with,
+        for each payload, what `decode` gives back (the delta's or detection's chunk, the bitmap chunk
+        itself), so an in-process receiver need not decode what it was handed."""
         if isinstance(message, Delta):
             return self._encode_delta(message, repair)
         if isinstance(message, Detection):
             return self._encode_detection(message)
         if isinstance(message, BitmapChunk):
-            return [self._encode_bitmap(message)]
+            return [(*self._encode_bitmap(message), message)]
         raise TypeError(f"cannot encode a {type(message).__name__}")
 
-    def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes]]:
+    def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes, Delta]]:
         cells = delta.cells
         if cells.size and (
             (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
         ):
             raise ValueError(f"delta cells outside the {self.width} x {self.height} grid")
-        if np.unique(cells[:, 0] * self.height + cells[:, 1]).size != len(cells):
+        index = cells[:, 0] * self.height + cells[:, 1]
+        if len(set(index.tolist())) != len(cells):
             raise ValueError("a delta lists each cell once")
+        body = np.empty(len(cells), dtype=_CELL_DTYPE)
+        body["cell"] = index | (delta.obstacle.astype(np.int64) << 15)
+        body["phi"] = delta.phi
+        raw = body.tobytes()
         parts = delta.split(MAX_DELTA_CELLS)
         out = []
         for i, part in enumerate(parts):
-            body = np.empty(len(part), dtype=_CELL_DTYPE)
-            body["cell"] = (part.cells[:, 0] * self.height + part.cells[:, 1]) | (part.obstacle.astype(np.int64) << 15)
-            body["phi"] = part.phi
             # chunks stand alone; past 255 of them the numbering starts a new group of up to 255
             group = i // MAX_CHUNKS * MAX_CHUNKS
             count = min(MAX_CHUNKS, len(parts) - group)
             head = self._header(delta.sender, delta.step, i - group, count, delta.cell, delta.on_target, repair)
-            out.append((PT_DELTA, head + bytes([len(part)]) + body.tobytes()))
+            start = i * MAX_DELTA_CELLS * _CELL_DTYPE.itemsize
+            chunk = raw[start : start + len(part) * _CELL_DTYPE.itemsize]
+            out.append((PT_DELTA, head + bytes([len(part)]) + chunk, part))
         return out
 
-    def _encode_detection(self, det: Detection) -> list[tuple[int, bytes]]:
+    def _encode_detection(self, det: Detection) -> list[tuple[int, bytes, Detection]]:
         t = det.targets
         if not len(t):
             raise ValueError("a detection needs at least one target cell")
@@ -241,6 +252,7 @@ class KnowledgeCodec:
                 self._header(det.sender, det.step, i, len(pieces), det.cell, det.on_target, False)
                 + bytes([len(p)])
                 + p.astype(np.uint8).tobytes(),
+                det if len(pieces) == 1 else Detection(det.sender, det.step, det.cell, det.on_target, p),
             )
             for i, p in enumerate(pieces)
         ]
@@ -394,12 +406,11 @@ class KnowledgeCodec:
 
     # ----- MAVLink 2 frames -------------------------------------------------------------------------
     def frame(self, payload_type: int, payload: bytes) -> bytes:
-        """A MAVLink 2 TUNNEL frame (broadcast: target_system 0, target_component 0)."""
-        padded = list(payload) + [0] * (PAYLOAD_SIZE - len(payload))
-        msg = mavlink2.MAVLink_tunnel_message(0, 0, payload_type, len(payload), padded)
-        buf = msg.pack(self._tx)
+        """A MAVLink 2 TUNNEL frame (broadcast: target_system 0, target_component 0): the bytes
+        pymavlink's pack writes (pack_tunnel), with this codec's sequence numbers and signing."""
+        buf = pack_tunnel(self._tx, payload_type, payload)
         self._tx.seq = (self._tx.seq + 1) % 256
-        return bytes(buf)
+        return buf
 
     def frames(self, message: Message, repair: bool = False) -> list[bytes]:
         return [self.frame(pt, p) for pt, p in self.encode(message, repair)]
@@ -440,6 +451,45 @@ class KnowledgeCodec:
             if decoded is not None:
                 out.append((decoded, m.get_srcSystem(), len(m.get_msgbuf())))
         return out
+
+
+_TUNNEL_FIELDS = struct.Struct("<HBBB")  # payload_type, target_system, target_component, payload_length
+_V2_HEADER = struct.Struct("<BBBBBBBHB")
+_SIGNATURE_HEAD = struct.Struct("<BQ")
+_TUNNEL_ID = mavlink2.MAVLINK_MSG_ID_TUNNEL
+_TUNNEL_CRC_EXTRA = bytes([mavlink2.MAVLink_tunnel_message.crc_extra])
+
+
+def pack_tunnel(mav: mavlink2.MAVLink, payload_type: int, payload: bytes, target_system: int = 0) -> bytes:
+    """The MAVLink 2 frame of TUNNEL(target_system, 0, payload_type, len(payload), payload padded to
+    128 bytes) exactly as `MAVLink_tunnel_message(...).pack(mav)` builds it (trailing zeros of the
+    message stripped, CRC with the message's crc_extra, signed when `mav` signs: its link id and
+    timestamp, which it advances), without pymavlink's per-field Python. Does not advance `mav.seq`
+    (pack does not either)."""
+    n = len(payload)
+    if n > PAYLOAD_SIZE:
+        raise ValueError(f"a TUNNEL payload holds at most {PAYLOAD_SIZE} bytes, not {n}")
+    body = (_TUNNEL_FIELDS.pack(payload_type, target_system, 0, n) + bytes(payload)).rstrip(b"\0") or b"\0"
+    signing = mav.signing
+    signed = bool(signing.sign_outgoing)
+    head = _V2_HEADER.pack(
+        253,
+        len(body),
+        mavlink2.MAVLINK_IFLAG_SIGNED if signed else 0,
+        0,
+        mav.seq,
+        mav.srcSystem,
+        mav.srcComponent,
+        _TUNNEL_ID & 0xFFFF,
+        _TUNNEL_ID >> 16,
+    )
+    crc = mavlink2.x25crc(head[1:] + body + _TUNNEL_CRC_EXTRA).crc
+    buf = head + body + struct.pack("<H", crc)
+    if signed:
+        buf += _SIGNATURE_HEAD.pack(signing.link_id, signing.timestamp)[:7]
+        buf += hashlib.sha256(signing.secret_key + buf).digest()[:6]
+        signing.timestamp += 1
+    return buf
 
 
 def frame_sender_cell(frame_payload: bytes) -> tuple[int, int, tuple[int, int] | None] | None:

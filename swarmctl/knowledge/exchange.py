@@ -104,6 +104,7 @@ class KnowledgeExchange:
         self._now = 0  # the latest step given to `step`/`publish`
         self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
         self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
+        self._noted = np.zeros((knowledge.width, knowledge.height), dtype=bool)  # _learned_at != NEVER
         self.system_id = knowledge.vehicle_id + 1 if system_id is None else int(system_id)
         self.codec = KnowledgeCodec(
             mission_id, knowledge.width, knowledge.height, system_id=self.system_id, signing_key=signing_key
@@ -152,7 +153,7 @@ class KnowledgeExchange:
     def _send(self, message, repair: bool = False, answering: int | None = None) -> None:
         """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus. An
         answer to vehicle `answering`'s digest or request goes out only as far as its budget allows."""
-        for payload_type, payload in self.codec.encode(message, repair):
+        for payload_type, payload, part in self.codec.encode_parts(message, repair):
             frame = self.codec.frame(payload_type, payload)
             if answering is not None and not self.budget.spend(answering, len(frame)):
                 self.stats["withheld"] += 1  # the rest of the answer waits for the next period
@@ -160,7 +161,7 @@ class KnowledgeExchange:
             if self.bus is not None:
                 if self.outlet is not None and self.outlet(frame):
                     self.stats["link_packets"] += 1  # on the vehicle's own MAVLink link
-                self.bus.publish(self, payload_type, payload, len(frame))
+                self.bus.publish(self, payload_type, payload, len(frame), part)
             else:
                 try:
                     self.sock.sendto(frame, self.peer)
@@ -220,8 +221,10 @@ class KnowledgeExchange:
 
     def _note_learned(self, step: int) -> None:
         """Remember when each cell became known (for the push rule)."""
-        fresh = self.knowledge.explored & (self._learned_at == NEVER)
-        self._learned_at[fresh] = step
+        fresh = self.knowledge.explored > self._noted  # explored, not noted yet
+        if fresh.any():
+            self._learned_at[fresh] = step
+            self._noted |= fresh
 
     def publish_digest(self) -> None:
         """Broadcast the explored-cell digest now (all chunks) and, if any, the targets this vehicle

@@ -22,6 +22,7 @@ Merge semantics (a join semilattice, so merging is idempotent, commutative and a
 
 from __future__ import annotations
 
+import functools
 from collections.abc import MutableMapping
 from dataclasses import dataclass, field
 
@@ -46,9 +47,20 @@ def dequantise_phi(q: np.ndarray | int) -> np.ndarray:
     return (np.asarray(q, dtype=np.float32) / np.float32(PHI_LEVELS)).astype(np.float32)
 
 
+@functools.lru_cache(maxsize=32)
+def _disc(fov: float) -> tuple[np.ndarray, int]:
+    """The disc's offsets (read-only) and its radius in whole cells."""
+    offsets = fov_offsets(fov)
+    return offsets, int(np.abs(offsets).max(initial=0))
+
+
 def disc_cells(cell: tuple[int, int], width: int, height: int, fov: float = 3.0) -> np.ndarray:
     """(N, 2) cells of the sensing disc of radius `fov` around `cell` that lie on the grid."""
-    c = np.asarray(cell, dtype=np.int64) + fov_offsets(fov)
+    offsets, r = _disc(float(fov))
+    x, y = int(cell[0]), int(cell[1])
+    c = offsets + np.array([x, y], dtype=np.int64)
+    if r <= x < width - r and r <= y < height - r:  # the whole disc is on the grid
+        return c
     inside = (c[:, 0] >= 0) & (c[:, 0] < width) & (c[:, 1] >= 0) & (c[:, 1] < height)
     return c[inside]
 
@@ -316,7 +328,11 @@ class Knowledge:
 
     @property
     def own_position(self) -> Position | None:
-        return self.positions.get(self.vehicle_id)
+        key = self._position[self.vehicle_id]
+        if key < 0:
+            return None
+        step, cell, on_target = split_key(key)
+        return Position(step, cell, on_target)
 
     @property
     def peers(self) -> dict[int, Position]:
@@ -355,9 +371,10 @@ class Knowledge:
     def set_position(self, step: int, cell: tuple[int, int], on_target: bool = False) -> None:
         """Record the own position: it replaces any stored one of the same step or older (the vehicle
         knows best where it is); an older step than the stored one is ignored."""
-        self._check_cells(_cells_array([cell]))
+        if not (0 <= int(cell[0]) < self.width and 0 <= int(cell[1]) < self.height):
+            raise ValueError(f"cells outside the {self.width} x {self.height} grid")
         old = self._position[self.vehicle_id]
-        if old < 0 or int(step) >= split_key(old)[0]:
+        if old < 0 or int(step) >= int(old) >> 25:  # the stored step (stack.position_key)
             self._position[self.vehicle_id] = position_key(step, cell, on_target)
 
     def sense(self, cells, phi, obstacle) -> int:
@@ -371,8 +388,11 @@ class Knowledge:
         x, y = cells[:, 0], cells[:, 1]
         new = ~self.explored[x, y]
         self._apply(x, y, q, obs)
-        self._pending[x[new], y[new]] = True
-        return int(np.unique(x[new] * self.height + y[new]).size)
+        if not new.any():
+            return 0
+        x, y = x[new], y[new]
+        self._pending[x, y] = True
+        return len(set((x * self.height + y).tolist()))  # cells may repeat
 
     def sense_truth(self, phi_map: np.ndarray, obstacle_map: np.ndarray, fov: float = 3.0) -> int:
         """Sense the disc of radius `fov` around the own cell from ground-truth maps (simulation)."""
@@ -384,32 +404,21 @@ class Knowledge:
 
     def take_delta(self) -> Delta:
         """A delta with the cells this vehicle explored itself since the last call, and its position."""
-        x, y = np.nonzero(self._pending)
+        delta = self._delta_of(self._pending)
         self._pending[:] = False
-        own = self.own_position or Position(0, None)
-        return Delta(
-            self.vehicle_id,
-            own.step,
-            own.cell,
-            own.on_target,
-            np.stack([x, y], axis=1),
-            self.phi_q[x, y],
-            self.obstacle[x, y],
-        )
+        return delta
 
     def cells_delta(self, mask: np.ndarray) -> Delta:
         """A delta carrying every explored cell selected by `mask` (W, H) (repair answers)."""
-        x, y = np.nonzero(mask & self.explored)
-        own = self.own_position or Position(0, None)
-        return Delta(
-            self.vehicle_id,
-            own.step,
-            own.cell,
-            own.on_target,
-            np.stack([x, y], axis=1),
-            self.phi_q[x, y],
-            self.obstacle[x, y],
-        )
+        return self._delta_of(mask & self.explored)
+
+    def _delta_of(self, mask: np.ndarray) -> Delta:
+        """The cells of `mask` (x, y order) with their phi and obstacle flags, and the own position."""
+        cells = np.argwhere(mask)
+        x, y = cells[:, 0], cells[:, 1]
+        key = int(self._position[self.vehicle_id])
+        step, cell, on_target = split_key(key) if key >= 0 else (0, None, False)
+        return Delta(self.vehicle_id, step, cell, on_target, cells, self.phi_q[x, y], self.obstacle[x, y])
 
     def add_targets(self, cells, step: int) -> None:
         """Target cells reported at `step` (each keeps its earliest step)."""
@@ -482,9 +491,7 @@ class Knowledge:
 
     # ----- internals --------------------------------------------------------------------------------
     def _check_cells(self, cells: np.ndarray) -> None:
-        if cells.size and (
-            (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
-        ):
+        if cells.size and (cells.min() < 0 or cells[:, 0].max() >= self.width or cells[:, 1].max() >= self.height):
             raise ValueError(f"cells outside the {self.width} x {self.height} grid")
 
     def _apply(self, x: np.ndarray, y: np.ndarray, q: np.ndarray, obs: np.ndarray) -> None:

@@ -49,7 +49,25 @@ TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (CONTRACTS: at least once a
 CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "end", "end_action", "end_action_failed"})
 
 
+_PLAIN = frozenset({str, int, bool, type(None)})  # written as they are
+
+
 def _jsonable(value: Any) -> Any:
+    """A JSON-ready copy of `value`: floats rounded to 6 places, tuples and arrays as lists, numpy
+    scalars as Python values, paths as strings (dict keys as strings)."""
+    kind = type(value)
+    if kind is float:
+        return round(value, 6)
+    if kind in _PLAIN:
+        return value
+    if kind is list or kind is tuple:  # the common containers without a call per plain item
+        return [round(v, 6) if type(v) is float else v if type(v) in _PLAIN else _jsonable(v) for v in value]
+    if kind is dict:
+        return {str(k): v if type(v) in _PLAIN else _jsonable(v) for k, v in value.items()}
+    return _jsonable_other(value)
+
+
+def _jsonable_other(value: Any) -> Any:
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

@@ -81,18 +81,20 @@ def sense(
             dropped += len(rc) + len(rt)
             continue
         keep = in_footprint(rc, tuple(r.cell), grid, fov)
-        keep_t = in_footprint(rt, tuple(r.cell), grid, fov)
-        dropped += int((~keep).sum() + (~keep_t).sum())
+        dropped += int(len(keep) - np.count_nonzero(keep))
         cells.append(rc[keep])
         phi.append(np.asarray(r.phi, dtype=np.float32).reshape(-1)[keep])
         blocked = np.asarray(grid.blocked, dtype=bool)[rc[keep, 0], rc[keep, 1]]
         obstacle.append(np.asarray(r.obstacle, dtype=bool).reshape(-1)[keep] | blocked)
-        targets.append(rt[keep_t])
-        origins.append(np.tile(np.asarray(r.cell, dtype=np.int64), (int(keep_t.sum()), 1)))
+        if len(rt):
+            keep_t = in_footprint(rt, tuple(r.cell), grid, fov)
+            dropped += int(len(keep_t) - np.count_nonzero(keep_t))
+            targets.append(rt[keep_t])
+            origins.append(np.tile(np.asarray(r.cell, dtype=np.int64), (int(keep_t.sum()), 1)))
     if not cells:
         return Sensed(dropped=dropped)
     found, seen_from = _none(), _none()
-    if targets:
+    if any(len(t) for t in targets):  # np.unique(axis=0) is slow, even on nothing
         every, where = np.concatenate(targets).reshape(-1, 2), np.concatenate(origins).reshape(-1, 2)
         found, first = np.unique(every, axis=0, return_index=True)
         seen_from = where[first]
