@@ -75,6 +75,7 @@ TELEMETRY = (
 )
 
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
+_FOLLOWED = ("GLOBAL_POSITION_INT", "HEARTBEAT")  # what _on_message follows
 
 
 def fence_items(mav: Any, target_system: int, target_component: int, vertices: list[tuple[float, float]]) -> list[Any]:
@@ -138,6 +139,8 @@ class ArduPilotVehicle(Vehicle):
         self._expected_since: dict[str, float] = {}  # after_ekf messages: since when they are due
         self._mode_since: tuple[int | None, float] = (None, 0.0)  # the reported mode and since when
         self._listening = False
+        self._position_of: Any = None  # the GLOBAL_POSITION_INT `_position` was made from
+        self._position: Position | None = None
 
     @classmethod
     async def open(
@@ -147,9 +150,10 @@ class ArduPilotVehicle(Vehicle):
         link = await MavlinkLink(connection, signing_key=signing_key).open()
         return cls(link, sysid, owns_link=True, **kw)
 
-    def add_listener(self, callback: Any) -> bool:
-        """Every message of the link (which may carry other vehicles too) goes to callback(msg)."""
-        self.link.add_listener(callback)
+    def add_listener(self, callback: Any, types: Any = None) -> bool:
+        """Every message of the link (which may carry other vehicles too), or those of `types`, goes to
+        callback(msg)."""
+        self.link.add_listener(callback, types)
         return True
 
     def write_frame(self, frame: bytes) -> bool:
@@ -175,7 +179,7 @@ class ArduPilotVehicle(Vehicle):
         for a message that does not come or stops."""
         await self.link.wait_heartbeat(self.sysid, timeout)
         if not self._listening:
-            self.link.add_listener(self._on_message)
+            self.link.add_listener(self._on_message, _FOLLOWED)
             self._listening = True
         await self.request_telemetry()
         if self._telemetry_task is None:
@@ -185,12 +189,10 @@ class ArduPilotVehicle(Vehicle):
         """Follows this vehicle's reports: positions into the odometer, the mode's changes."""
         if msg.get_srcSystem() != self.sysid:
             return
-        mtype = msg.get_type()
-        if mtype == "GLOBAL_POSITION_INT":
-            pos = self.position
-            if pos is not None:
-                self.odometer.add(pos)
-        elif mtype == "HEARTBEAT" and msg.custom_mode != self._mode_since[0]:
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            if msg.lat != 0 or msg.lon != 0:  # a position (see `position`), its figures as `position` gives them
+                self.odometer.add_fix(from_deg_e7(msg.lat), from_deg_e7(msg.lon), msg.relative_alt / 1000.0)
+        elif msg.custom_mode != self._mode_since[0]:  # a HEARTBEAT
             self._mode_since = (msg.custom_mode, time.monotonic())
 
     async def request_telemetry(self, streams: tuple[Stream, ...] | list[Stream] = TELEMETRY) -> None:
@@ -396,8 +398,13 @@ class ArduPilotVehicle(Vehicle):
         )
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
+        self.goto_nowait(lat, lon, rel_alt)
+
+    def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
+        """SET_POSITION_TARGET_GLOBAL_INT has no answer: sent at once."""
         self.target = Target(lat, lon, rel_alt)
         self._send_target()
+        return True
 
     def _send_target(self) -> None:
         t = self.target
@@ -506,7 +513,7 @@ class ArduPilotVehicle(Vehicle):
 
         started = time.monotonic()
         resend, sent, attempts, restarted = count, -1, 1, False
-        self.link.add_listener(listen)
+        self.link.add_listener(listen, _UPLOAD_ANSWERS)
         try:
             self.link.send(count)
             while True:
@@ -580,7 +587,10 @@ class ArduPilotVehicle(Vehicle):
         m = self._msg("GLOBAL_POSITION_INT")
         if m is None or (m.lat == 0 and m.lon == 0):
             return None  # ArduPilot reports 0,0 until its EKF has an origin
-        return Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
+        if m is not self._position_of:  # converted once per report, when first read
+            self._position_of = m
+            self._position = Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
+        return self._position
 
     @property
     def home(self) -> Home | None:
