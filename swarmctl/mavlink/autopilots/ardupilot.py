@@ -49,6 +49,7 @@ PREARM_LAG_S = 1.0
 # a requested message that has not come (or has stopped) for this long, or three of its periods, is
 # asked for again: SITL starts its streams 1.4 s after the first heartbeat
 STREAM_PATIENCE_S = 3.0
+KEEP_TELEMETRY_S = 0.25  # how often the driver looks for telemetry that is overdue
 _WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
 
@@ -132,7 +133,8 @@ class ArduPilotVehicle(Vehicle):
         self.target: Target | None = None
         self.odometer = Odometer()
         self._target_sent = 0.0
-        self._telemetry_task: asyncio.Task | None = None
+        self._telemetry_timer: asyncio.TimerHandle | None = None  # the check for overdue telemetry
+        self._asking: asyncio.Task | None = None  # asking again for overdue telemetry
         self.unsupported: set[str] = set()  # telemetry messages the vehicle refused to stream
         self.requests: Counter[str] = Counter()  # SET_MESSAGE_INTERVAL sent, per message
         self._asked: dict[str, float] = {}  # message -> when it was last asked for (time.monotonic())
@@ -182,8 +184,8 @@ class ArduPilotVehicle(Vehicle):
             self.link.add_listener(self._on_message, _FOLLOWED)
             self._listening = True
         await self.request_telemetry()
-        if self._telemetry_task is None:
-            self._telemetry_task = asyncio.create_task(self._keep_telemetry())
+        if self._telemetry_timer is None:
+            self._telemetry_timer = asyncio.get_running_loop().call_later(KEEP_TELEMETRY_S, self._keep_telemetry)
 
     def _on_message(self, msg: Any) -> None:
         """Follows this vehicle's reports: positions into the odometer, the mode's changes."""
@@ -236,20 +238,24 @@ class ArduPilotVehicle(Vehicle):
         last = max(peer.received_at.get(stream.name, 0.0), self._asked.get(stream.name, 0.0), since)
         return now - last > patience
 
-    async def _keep_telemetry(self) -> None:
-        """Ask again for the messages that are overdue (each alone), while the vehicle's heartbeats come."""
-        while True:
-            await asyncio.sleep(0.25)
-            if self.lost:
-                continue
-            now = time.monotonic()
-            due = [s for s in TELEMETRY if self.overdue(s, now)]
-            if due:
-                log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
-                try:
-                    await self.request_telemetry(due)
-                except MavlinkError as exc:
-                    log.info("%s: telemetry request failed: %s", self.name, exc)
+    def _keep_telemetry(self) -> None:
+        """Every KEEP_TELEMETRY_S (a timer, not a task: it runs for every vehicle all the time), while the
+        vehicle's heartbeats come: ask again for the messages that are overdue, each alone (one request
+        at a time; the checks pause while it is in flight)."""
+        self._telemetry_timer = asyncio.get_running_loop().call_later(KEEP_TELEMETRY_S, self._keep_telemetry)
+        if self.lost or (self._asking is not None and not self._asking.done()):
+            return
+        now = time.monotonic()
+        due = [s for s in TELEMETRY if self.overdue(s, now)]
+        if due:
+            self._asking = asyncio.ensure_future(self._ask_again(due))
+
+    async def _ask_again(self, due: list[Stream]) -> None:
+        log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
+        try:
+            await self.request_telemetry(due)
+        except MavlinkError as exc:
+            log.info("%s: telemetry request failed: %s", self.name, exc)
 
     # --- readiness -------------------------------------------------------------------------------------
 
@@ -559,13 +565,16 @@ class ArduPilotVehicle(Vehicle):
             self.link.remove_listener(listen)
 
     async def close(self) -> None:
-        if self._telemetry_task is not None:
-            self._telemetry_task.cancel()
+        if self._telemetry_timer is not None:
+            self._telemetry_timer.cancel()
+            self._telemetry_timer = None
+        if self._asking is not None:
+            self._asking.cancel()
             try:
-                await self._telemetry_task
+                await self._asking
             except asyncio.CancelledError:
                 pass
-            self._telemetry_task = None
+            self._asking = None
         if self._listening:
             self.link.remove_listener(self._on_message)
             self._listening = False
