@@ -300,10 +300,15 @@ class MavlinkLink:
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
                     peer.statustexts.append((now, msg.severity, msg.text))
-            for cb in self._listeners + self._typed.get(mtype, ()):  # the listeners now (one may add one)
+            for cb in self._listeners:  # the listeners now (one may add another)
                 try:
                     cb(msg)
                 except Exception:  # a listener's bug must not stop the link
+                    log.exception("MAVLink listener failed")
+            for cb in self._typed.get(mtype, ()):
+                try:
+                    cb(msg)
+                except Exception:
                     log.exception("MAVLink listener failed")
             if self._waiters:
                 self._check_waiters(msg)
