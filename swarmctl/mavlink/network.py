@@ -58,7 +58,7 @@ class _Inbox:
     timer checks every open link's heartbeats every WATCHDOG_S (not a task per link)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
-        self.loop = loop
+        self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
         self._items: list[tuple[MavlinkLink, list]] = []
         self._lock = threading.Lock()
         self._scheduled = False
@@ -72,8 +72,11 @@ class _Inbox:
             if self._scheduled:
                 return
             self._scheduled = True
+        loop = self._loop()
         try:
-            self.loop.call_soon_threadsafe(self.loop.call_later, GATHER_S, self._drain)
+            if loop is None:
+                raise RuntimeError("the event loop is gone")
+            loop.call_soon_threadsafe(loop.call_later, GATHER_S, self._drain)
         except RuntimeError:
             with self._lock:
                 self._scheduled = False
@@ -95,7 +98,7 @@ class _Inbox:
     def watch(self, link: MavlinkLink) -> None:
         self._links[link] = None
         if self._watchdog is None:
-            self._watchdog = self.loop.call_later(WATCHDOG_S, self._check)
+            self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check)
 
     def unwatch(self, link: MavlinkLink) -> None:
         self._links.pop(link, None)
@@ -110,7 +113,7 @@ class _Inbox:
                 link._check_heartbeats(now)
             except Exception:  # one link's failure must not stop the watch of the others
                 log.exception("link watchdog failed")
-        self._watchdog = self.loop.call_later(WATCHDOG_S, self._check) if self._links else None
+        self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
 
 
 _inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
