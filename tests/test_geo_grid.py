@@ -161,3 +161,17 @@ def test_origin_is_south_west_corner():
     e, n = PROJ.to_metres(lon[0, 0], lat[0, 0])
     assert (e, n) == pytest.approx((0.0, 0.0), abs=1e-3)
     assert (LON0, LAT0) != (lon[0, 0], lat[0, 0])
+
+
+def test_cell_centres_are_converted_once_and_match_the_conversion_of_each_cell():
+    grid = GeoGrid(PROJ.proj, (-120.0, 35.0), 17.5, 12.0, np.zeros((7, 5), dtype=bool))  # rotated, off the origin
+    for x in range(7):
+        for y in range(5):
+            lat, lon = grid.cells_to_latlon(x, y)
+            assert grid.cell_to_latlon(x, y) == (float(lat), float(lon))  # bit for bit
+    lat, lon = grid.cells_to_latlon(-1, 9)  # outside the grid: converted
+    assert grid.cell_to_latlon(-1, 9) == (float(lat), float(lon))
+    before = grid.cell_to_latlon(3, 3)
+    grid.origin = (0.0, 0.0)  # the grid moved: its centres are converted again
+    assert grid.cell_to_latlon(3, 3) != before
+    assert grid.cell_to_latlon(3, 3) == tuple(float(v) for v in grid.cells_to_latlon(3, 3))

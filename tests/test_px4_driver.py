@@ -334,6 +334,9 @@ def test_the_mock_px4_returns_at_rtl_return_alt_and_holds_once_disarmed_as_px4_s
                         modes.append(m.mode_name)
                     await asyncio.sleep(0.02)
                 modes.append(m.mode_name)
+                # the mock's state is read directly; its STATUSTEXT comes over the link, a little later
+                landed = lambda: "Disarmed by landing" in link.peer(6).texts_since(0)  # noqa: E731
+                await link.wait_until(landed, 2, '"Disarmed by landing"', "px4")
                 texts = link.peer(6).texts_since(0)
                 return top, modes, distance_m(m.lat, m.lon, HOME[0], HOME[1]), texts
         finally:

@@ -125,9 +125,25 @@ class GeoGrid:
         return np.floor(gx).astype(np.int64), np.floor(gy).astype(np.int64)
 
     def cell_to_latlon(self, x: int, y: int) -> tuple[float, float]:
-        """(lat, lon) of the centre of cell (x, y); the vehicle flies there at `altitude`."""
+        """(lat, lon) of the centre of cell (x, y); the vehicle flies there at `altitude`. A cell of the
+        grid is looked up in `centres` (the same values, converted once); one outside it is converted."""
+        if 0 <= x < self.blocked.shape[0] and 0 <= y < self.blocked.shape[1]:
+            lat, lon = self.centres()
+            return lat[x][y], lon[x][y]
         lat, lon = self.cells_to_latlon(x, y)
         return float(lat), float(lon)
+
+    def centres(self) -> tuple[list[list[float]], list[list[float]]]:
+        """(lat, lon) of every cell's centre, degrees, as nested lists indexed [x][y] (Python floats, so a
+        look-up costs no conversion): `cells_to_latlon` of all cells at once, kept until the grid's
+        placement (projection, origin, rotation, cell size, shape) changes."""
+        key = (self.proj, tuple(self.origin), self.rotation, self.cell, self.blocked.shape)
+        cached = self.__dict__.get("_centres")
+        if cached is None or cached[0] != key:
+            xs, ys = np.meshgrid(np.arange(self.width), np.arange(self.height), indexing="ij")
+            lat, lon = self.cells_to_latlon(xs, ys)
+            cached = self._centres = (key, (lat.tolist(), lon.tolist()))
+        return cached[1]
 
     def latlon_to_cell(self, lat: float, lon: float) -> tuple[int, int]:
         """The cell (x, y) containing (lat, lon); may lie outside the grid (see `in_grid`)."""

@@ -2,9 +2,13 @@
 
 Concurrency model: one asyncio event loop drives every vehicle. Each `MavlinkLink` owns one reader
 thread that blocks on its socket/serial port, parses bytes with pymavlink and hands the messages to the
-loop (`call_soon_threadsafe`); everything else (state, waits, command retries, the 1 Hz heartbeat, the
-link-loss watchdog) runs as coroutines on the loop. Sending is a non-blocking datagram/serial write
-under a lock. A slow or silent vehicle only makes its own coroutines wait, never the others.
+loop through the loop's `_Inbox` (one `call_soon_threadsafe` wakes the loop for what every link's reader
+has handed over meanwhile, not one per datagram); a message goes only to the listeners registered for
+its type (or for every message), and batch listeners (the recorder's tap) take a link's messages a
+batch at a time. Everything else (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines
+on the loop, and one timer of the loop checks every link for link loss. Sending is a non-blocking
+datagram/serial write under a lock. A slow or silent vehicle only makes its own coroutines wait, never
+the others.
 
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
@@ -17,8 +21,9 @@ import asyncio
 import logging
 import threading
 import time
+import weakref
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +44,86 @@ _UNSIGNED_OK = {MAV.MAVLINK_MSG_ID_RADIO_STATUS}
 def command_name(command: int) -> str:
     entry = MAV.enums["MAV_CMD"].get(command)
     return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+GATHER_S = 0.005  # a loop woken by a reader takes what every reader has handed over this long after
+WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
+
+
+class _Inbox:
+    """The loop's side of every link on it. What the links' reader threads parse is handed to the loop in
+    one callback: a reader appends (link, messages) and wakes the loop only when no drain is pending; the
+    drain runs GATHER_S later and calls each link's `_dispatch` once with all of its messages, in their
+    order (so the loop is woken a few hundred times a second at most, not once per datagram). And one
+    timer checks every open link's heartbeats every WATCHDOG_S (not a task per link)."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop):
+        self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
+        self._items: list[tuple[MavlinkLink, list]] = []
+        self._lock = threading.Lock()
+        self._scheduled = False
+        self._links: dict[MavlinkLink, None] = {}  # open links, in the order they were opened
+        self._watchdog: asyncio.TimerHandle | None = None
+
+    def put(self, link: MavlinkLink, msgs: list) -> None:
+        """From a reader thread. RuntimeError when the loop is closed."""
+        with self._lock:
+            self._items.append((link, msgs))
+            if self._scheduled:
+                return
+            self._scheduled = True
+        loop = self._loop()
+        try:
+            if loop is None:
+                raise RuntimeError("the event loop is gone")
+            loop.call_soon_threadsafe(loop.call_later, GATHER_S, self._drain)
+        except RuntimeError:
+            with self._lock:
+                self._scheduled = False
+            raise
+
+    def _drain(self) -> None:
+        with self._lock:
+            items, self._items = self._items, []
+            self._scheduled = False
+        batches: dict[MavlinkLink, list] = {}
+        for link, msgs in items:
+            if link in batches:
+                batches[link] += msgs
+            else:
+                batches[link] = msgs
+        for link, msgs in batches.items():
+            link._dispatch(msgs)
+
+    def watch(self, link: MavlinkLink) -> None:
+        self._links[link] = None
+        if self._watchdog is None:
+            self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check)
+
+    def unwatch(self, link: MavlinkLink) -> None:
+        self._links.pop(link, None)
+        if not self._links and self._watchdog is not None:
+            self._watchdog.cancel()
+            self._watchdog = None
+
+    def _check(self) -> None:
+        now = time.monotonic()
+        for link in list(self._links):
+            try:
+                link._check_heartbeats(now)
+            except Exception:  # one link's failure must not stop the watch of the others
+                log.exception("link watchdog failed")
+        self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
+
+
+_inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
+
+
+def _inbox(loop: asyncio.AbstractEventLoop) -> _Inbox:
+    box = _inboxes.get(loop)
+    if box is None:
+        box = _inboxes[loop] = _Inbox(loop)
+    return box
 
 
 class _Writer:
@@ -109,7 +194,9 @@ class MavlinkLink:
         self.peers: dict[int, Peer] = {}
         self.stats = LinkStats()
         self.events: list[tuple[float, int, str]] = []  # (monotonic time, sysid, "seen"|"lost"|"back")
-        self._listeners: list[Callable[[Any], None]] = []
+        self._listeners: tuple[Callable[[Any], None], ...] = ()  # for every message
+        self._typed: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> its listeners
+        self._batch_listeners: tuple[Callable[[list], None], ...] = ()
         self._link_callbacks: list[Callable[[int, str], None]] = []
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
         self._bad_logged = -1e9
@@ -121,12 +208,14 @@ class MavlinkLink:
         self._tasks: list[asyncio.Task] = []
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._inbox: _Inbox | None = None
         self.mav: Any = None
 
     # --- life cycle ---------------------------------------------------------------------------------
 
     async def open(self) -> MavlinkLink:
         self._loop = asyncio.get_running_loop()
+        self._inbox = _inbox(self._loop)
         self._transport = open_transport(self.endpoint)
         self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id, srcComponent=self.component_id)
         self.mav.robust_parsing = True
@@ -135,12 +224,15 @@ class MavlinkLink:
             setup_signing(self.mav, self.signing_key, accept_unsigned=unsigned)
         self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
         self._thread.start()
-        self._tasks = [asyncio.create_task(self._heartbeat_loop()), asyncio.create_task(self._watchdog_loop())]
+        self._tasks = [asyncio.create_task(self._heartbeat_loop())]
+        self._inbox.watch(self)  # link loss: the loop's watchdog (_check_heartbeats)
         return self
 
     async def close(self) -> None:
         await cancel_tasks(self._tasks)
         self._tasks = []
+        if self._inbox is not None:
+            self._inbox.unwatch(self)
         self._stop.set()
         if self._thread is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._thread.join, 2.0)
@@ -166,7 +258,7 @@ class MavlinkLink:
     # --- receiving ------------------------------------------------------------------------------------
 
     def _reader(self) -> None:
-        assert self._transport is not None and self._loop is not None
+        assert self._transport is not None and self._inbox is not None
         while not self._stop.is_set():
             try:
                 data = self._transport.read(0.1)
@@ -183,64 +275,84 @@ class MavlinkLink:
                 self._transport.accept_source()  # udpin: answer this address from now on
             if msgs:
                 try:
-                    self._loop.call_soon_threadsafe(self._dispatch, msgs)
+                    self._inbox.put(self, msgs)
                 except RuntimeError:  # loop closed while stopping
                     return
 
     def _dispatch(self, msgs: list) -> None:
         now = time.monotonic()
+        accepted = []
         for msg in msgs:
             if isinstance(msg, MAV.MAVLink_unknown):
                 self.stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
                 continue
             mtype = msg.get_type()
-            if mtype == "BAD_DATA" and self._console_text(msg):
-                continue
             if mtype == "BAD_DATA":
-                self.stats.bad_data += 1
-                if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
-                    self._bad_logged = now
-                    log.warning(
-                        "rejected bad MAVLink data on %s (%d so far): %s",
-                        self.endpoint,
-                        self.stats.bad_data,
-                        getattr(msg, "reason", ""),
-                    )
+                if not self._console_text(msg):
+                    self._bad_data(msg, now)
                 continue
+            accepted.append(msg)
             self._framed = True
             self.stats.received += 1
             src = msg.get_srcSystem()
             if mtype == "HEARTBEAT":
-                if msg.autopilot == MAV.MAV_AUTOPILOT_INVALID:
-                    pass  # another ground station or companion; not a vehicle
-                else:
-                    peer = self.peers.get(src)
-                    if peer is None:
-                        peer = self.peers[src] = Peer(sysid=src)
-                    event = "seen" if peer.heartbeat is None else ("back" if peer.lost else None)
-                    peer.compid = msg.get_srcComponent()
-                    peer.heartbeat, peer.last_heartbeat, peer.lost = msg, now, False
-                    if event:
-                        self._link_event(src, event)
+                self._heartbeat(msg, src, now)
             peer = self.peers.get(src)
             if peer is not None:
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
                     peer.statustexts.append((now, msg.severity, msg.text))
-            for cb in list(self._listeners):
+            for cb in self._listeners:  # the listeners now (one may add another)
                 try:
                     cb(msg)
                 except Exception:  # a listener's bug must not stop the link
                     log.exception("MAVLink listener failed")
-            for pred, fut in list(self._waiters):
-                if fut.done():
-                    continue
+            for cb in self._typed.get(mtype, ()):
                 try:
-                    if pred(msg):
-                        fut.set_result(msg)
-                except Exception as exc:
-                    fut.set_exception(exc)
+                    cb(msg)
+                except Exception:
+                    log.exception("MAVLink listener failed")
+            if self._waiters:
+                self._check_waiters(msg)
+        for cb in self._batch_listeners if accepted else ():
+            try:
+                cb(accepted)
+            except Exception:
+                log.exception("MAVLink listener failed")
+
+    def _bad_data(self, msg: Any, now: float) -> None:
+        self.stats.bad_data += 1
+        if now - self._bad_logged > 5.0:  # logged, but at most once per 5 s per link
+            self._bad_logged = now
+            log.warning(
+                "rejected bad MAVLink data on %s (%d so far): %s",
+                self.endpoint,
+                self.stats.bad_data,
+                getattr(msg, "reason", ""),
+            )
+
+    def _heartbeat(self, msg: Any, src: int, now: float) -> None:
+        if msg.autopilot == MAV.MAV_AUTOPILOT_INVALID:
+            return  # another ground station or companion; not a vehicle
+        peer = self.peers.get(src)
+        if peer is None:
+            peer = self.peers[src] = Peer(sysid=src)
+        event = "seen" if peer.heartbeat is None else ("back" if peer.lost else None)
+        peer.compid = msg.get_srcComponent()
+        peer.heartbeat, peer.last_heartbeat, peer.lost = msg, now, False
+        if event:
+            self._link_event(src, event)
+
+    def _check_waiters(self, msg: Any) -> None:
+        for pred, fut in list(self._waiters):
+            if fut.done():
+                continue
+            try:
+                if pred(msg):
+                    fut.set_result(msg)
+            except Exception as exc:
+                fut.set_exception(exc)
 
     def _console_text(self, msg: Any) -> bool:
         """True when these bad bytes are the autopilot's console text: on a stream link (TCP, serial),
@@ -261,13 +373,32 @@ class MavlinkLink:
         self.console = (self.console + data)[:CONSOLE_KEEP]
         return True
 
-    def add_listener(self, callback: Callable[[Any], None]) -> None:
-        """Call callback(msg) on the event loop for every message received."""
-        self._listeners.append(callback)
+    def add_listener(self, callback: Callable[[Any], None], types: Iterable[str] | None = None) -> None:
+        """Call callback(msg) on the event loop for every message received, or (`types`) for the
+        messages of those types only."""
+        if types is None:
+            self._listeners += (callback,)
+            return
+        for t in types:
+            self._typed[t] = self._typed.get(t, ()) + (callback,)
+
+    def add_batch_listener(self, callback: Callable[[list], None]) -> None:
+        """Call callback(msgs) on the event loop with the valid messages received, a batch at a time (in
+        the order they came, each message once; after the per-message listeners have seen them)."""
+        self._batch_listeners += (callback,)
 
     def remove_listener(self, callback: Callable[[Any], None]) -> None:
-        if callback in self._listeners:
-            self._listeners.remove(callback)
+        """Stop calling callback (whichever way it was added)."""
+
+        def without(cbs: tuple) -> tuple:  # the first time it was added there
+            for i, cb in enumerate(cbs):
+                if cb == callback:
+                    return cbs[:i] + cbs[i + 1 :]
+            return cbs
+
+        self._listeners = without(self._listeners)
+        self._batch_listeners = without(self._batch_listeners)
+        self._typed = {t: left for t, cbs in self._typed.items() if (left := without(cbs))}
 
     def on_link_change(self, callback: Callable[[int, str], None]) -> None:
         """Call callback(sysid, event) with event "seen", "lost" or "back"."""
@@ -329,14 +460,12 @@ class MavlinkLink:
             )
             await asyncio.sleep(self.heartbeat_period)
 
-    async def _watchdog_loop(self) -> None:
-        while True:
-            now = time.monotonic()
-            for p in self.peers.values():
-                if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
-                    p.lost = True
-                    self._link_event(p.sysid, "lost")
-            await asyncio.sleep(0.1)
+    def _check_heartbeats(self, now: float) -> None:
+        """A vehicle whose last heartbeat is more than lost_after old is lost (called every WATCHDOG_S)."""
+        for p in list(self.peers.values()):
+            if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
+                p.lost = True
+                self._link_event(p.sysid, "lost")
 
     # --- sending --------------------------------------------------------------------------------------
 

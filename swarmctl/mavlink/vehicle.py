@@ -11,7 +11,7 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -54,14 +54,18 @@ class Odometer:
 
     def __init__(self) -> None:
         self.metres = 0.0
-        self._last: Position | None = None
+        self._last: tuple[float, float, float] | None = None  # lat, lon, rel_alt of the last fix
 
     def add(self, pos: Position) -> None:
+        self.add_fix(pos.lat, pos.lon, pos.rel_alt)
+
+    def add_fix(self, lat: float, lon: float, rel_alt: float) -> None:
+        """`add` from the figures of a position report (degrees, metres above home), without a Position."""
         last = self._last
-        if last is not None and max(last.rel_alt, pos.rel_alt) >= AIRBORNE_M:
-            horizontal = distance_m(last.lat, last.lon, pos.lat, pos.lon)
-            self.metres += math.hypot(horizontal, pos.rel_alt - last.rel_alt)
-        self._last = pos
+        if last is not None and max(last[2], rel_alt) >= AIRBORNE_M:
+            horizontal = distance_m(last[0], last[1], lat, lon)
+            self.metres += math.hypot(horizontal, rel_alt - last[2])
+        self._last = (lat, lon, rel_alt)
 
 
 def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -94,9 +98,10 @@ class Vehicle(abc.ABC):
         """The firmware's name ("ardupilot", "px4"), or None while it is not known."""
         return None if self.autopilot_info is None else self.autopilot_info.name
 
-    def add_listener(self, callback: Callable[[Any], None]) -> bool:
-        """Call callback(msg) with the MAVLink messages received on this vehicle's link, where its
-        driver sees them; False when it does not (MAVSDK hands out no raw messages)."""
+    def add_listener(self, callback: Callable[[Any], None], types: Iterable[str] | None = None) -> bool:
+        """Call callback(msg) with the MAVLink messages received on this vehicle's link (or, `types`,
+        those of these types only), where its driver sees them; False when it does not (MAVSDK hands out
+        no raw messages)."""
         return False
 
     def write_frame(self, frame: bytes) -> bool:
@@ -174,6 +179,11 @@ class Vehicle(abc.ABC):
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         """Send a position target (degrees, metres above home). Returns without waiting."""
 
+    def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
+        """`goto` at once, for a driver that sends a position target without waiting for an answer; False
+        (nothing sent) for one that waits: use `goto`."""
+        return False
+
     @abc.abstractmethod
     async def land(self) -> None:
         """Land where the vehicle is."""
@@ -246,6 +256,11 @@ class Vehicle(abc.ABC):
                 raise WaitTimeout(what, self.name, timeout, self._state_text())
             await self._on_wait()
             await asyncio.sleep(period)
+
+    async def keep_going(self) -> None:
+        """What the driver does while something waits for the vehicle to reach its target (the `_on_wait`
+        hook of `wait_reached`): call it now and then while waiting."""
+        await self._on_wait()
 
     async def _on_wait(self) -> None:  # noqa: B027 - an optional hook, empty by default
         """Hook run while waiting (ArduPilot resends its position target here)."""

@@ -161,24 +161,28 @@ class Controller:
     def _watch_link(self, link: Any) -> None:
         """A link the connector opened: record it, count its losses, follow its vehicles, forward it."""
         self.rec.tap_link(link)
-        link.add_listener(self._count_gaps)
+        link.add_batch_listener(self._count_gaps)
         link.on_link_change(self._link_change)
         if self.gcs is not None:
             link.add_listener(self.gcs.forward)
 
-    def _count_gaps(self, msg: Any) -> None:
+    def _count_gaps(self, msgs: list) -> None:
         """MAVLink sequence gaps per sender (the mission's vehicles: their system ids, component 1 or
-        whatever they send from, at most 256 entries each): packets lost on the way to us."""
-        key = (msg.get_srcSystem(), msg.get_srcComponent())
-        if key[0] not in self._sysids:
-            return
-        seq = msg.get_seq()
-        last = self._link_seq.get(key)
-        if last is not None:
-            gap = (seq - last - 1) % 256
-            if gap < 128:  # a larger jump is a reboot or reordering, not loss
-                self.lost_packets[key[0]] += gap
-        self._link_seq[key] = seq
+        whatever they send from, at most 256 entries each): packets lost on the way to us. Takes a
+        link's messages a batch at a time, in the order they came."""
+        sysids, seqs, lost = self._sysids, self._link_seq, self.lost_packets
+        for msg in msgs:
+            header = msg._header  # pymavlink's parsed header: srcSystem, srcComponent, seq
+            src = header.srcSystem
+            if src not in sysids:
+                continue
+            key, seq = (src, header.srcComponent), header.seq
+            last = seqs.get(key)
+            if last is not None:
+                gap = (seq - last - 1) % 256
+                if gap < 128:  # a larger jump is a reboot or reordering, not loss
+                    lost[src] += gap
+            seqs[key] = seq
 
     def _link_change(self, sysid: int, event: str) -> None:
         self.rec.event("link", sysid=sysid, change=event)

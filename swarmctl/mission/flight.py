@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -56,30 +58,94 @@ def nearest_free(c: Controller, start: tuple[int, int], exclude: Agent | None = 
     return (flat // h, flat % h)
 
 
+POLL_S = 0.05  # how often the waiting flights are looked at (arrival, timeout, the driver's resends)
+COURSE_S = 0.1  # how often a flight in progress is checked against its course (swarmctl.mission.watch)
+
+
+@dataclass
+class _Flight:
+    agent: Agent
+    cell: tuple[int, int]
+    limit: float  # seconds it may take, from when its position target has gone out
+    deadline: float | None = None  # None: its driver is still sending the position target
+    reached: bool | None = None  # the outcome, once known
+
+
 async def fly(c: Controller, a: Agent, cell: tuple[int, int], timeout: float | None) -> bool:
-    """Send the position target for the cell centre at the mission altitude and wait until it is
-    reached, for `timeout` seconds (None: derived from the vehicle's speeds and the distance to the
-    cell, timeouts.move). False only when that time ran out: a wait cut short because the link was
-    lost, the mission stopped or the vehicle went off course (swarmctl.mission.watch flags it at the
-    next round) returns True at once (it is not a step timeout)."""
-    if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
-        raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
-    lat, lon = c.grid.cell_to_latlon(*cell)
+    """One vehicle's flight to a cell (see fly_all)."""
+    return (await fly_all(c, [(a, cell)], timeout))[0]
+
+
+async def fly_all(c: Controller, moves: list[tuple[Agent, tuple[int, int]]], timeout: float | None) -> list[bool]:
+    """Send each vehicle the position target for its cell's centre at the mission altitude and wait until
+    each has reached it, for `timeout` seconds (None: derived from the vehicle's speeds and the distance
+    to the cell, timeouts.move) from when its target went out. Per move, False only when that time ran
+    out: a wait cut short because the link was lost, the mission stopped or the vehicle went off course
+    (swarmctl.mission.watch flags it at the next round) gives True at once (it is not a step timeout).
+
+    One waiter for all of them, every POLL_S (not a task per vehicle): a driver that sends at once
+    (`Vehicle.goto_nowait`) is not given a task at all, one that must wait for an answer (PX4) gets one
+    for its `goto` only."""
+    for a, cell in moves:
+        if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
+            raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
     alt = c.guard.setpoint_altitude()
-    timeout = timeouts.move(timeout, a.vehicle, lat, lon, alt)
-    await a.vehicle.goto(lat, lon, alt)
-    task = asyncio.ensure_future(a.vehicle.wait_reached(c.plan.spec.flight.reach_tolerance, timeout))
+    flights: list[_Flight] = []
+    sending: list[asyncio.Task] = []
+    for a, cell in moves:
+        lat, lon = c.grid.cell_to_latlon(*cell)
+        f = _Flight(a, cell, timeouts.move(timeout, a.vehicle, lat, lon, alt))
+        flights.append(f)
+        if a.vehicle.goto_nowait(lat, lon, alt):
+            f.deadline = time.monotonic() + f.limit
+        else:
+            sending.append(asyncio.ensure_future(_send(f, lat, lon, alt)))
     try:
-        while not task.done():
-            if a.vehicle.lost or c.stopping or off_course(c, a, cell):
-                return True
-            await asyncio.wait({task}, timeout=0.1)
-        return task.exception() is None
+        await _wait(c, flights, sending)
     finally:
-        if not task.done():
-            await cancel(task)
-        elif not task.cancelled() and task.exception() is not None and not isinstance(task.exception(), MavlinkError):
-            raise task.exception()
+        for t in sending:
+            if not t.done():
+                await cancel(t)
+    return [bool(f.reached) for f in flights]
+
+
+async def _send(f: _Flight, lat: float, lon: float, alt: float) -> None:
+    await f.agent.vehicle.goto(lat, lon, alt)
+    f.deadline = time.monotonic() + f.limit
+
+
+async def _wait(c: Controller, flights: list[_Flight], sending: list[asyncio.Task]) -> None:
+    tolerance = c.plan.spec.flight.reach_tolerance
+    course_at = 0.0
+    while True:
+        for t in sending:
+            if t.done() and t.exception() is not None:
+                raise t.exception()
+        now = time.monotonic()
+        course = now >= course_at
+        if course:
+            course_at = now + COURSE_S
+        waiting = False
+        for f in flights:
+            if f.reached is not None:
+                continue
+            if f.deadline is None:
+                waiting = True
+                continue
+            v = f.agent.vehicle
+            if v.reached(tolerance) or v.lost or c.stopping or (course and off_course(c, f.agent, f.cell)):
+                f.reached = True
+            elif time.monotonic() > f.deadline:
+                f.reached = False
+            else:
+                try:
+                    await v.keep_going()
+                    waiting = True
+                except MavlinkError:  # as wait_reached would have ended: not reached in time
+                    f.reached = False
+        if not waiting:
+            return
+        await asyncio.sleep(POLL_S)
 
 
 async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:

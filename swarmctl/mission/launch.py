@@ -54,7 +54,7 @@ async def connect(c: Controller, a: Agent) -> None:
         c.stop()
         return
     a.vehicle = vehicle
-    vehicle.add_listener(a.feed.listener(spec.sysid))  # the detector's TUNNEL reports, where they come
+    vehicle.add_listener(a.feed.listener(spec.sysid), ("TUNNEL",))  # the detector's reports, where they come
 
 
 async def start(c: Controller, a: Agent) -> None:

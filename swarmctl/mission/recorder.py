@@ -122,6 +122,17 @@ class Recorder:
             self._tlog.write(_TS.pack(stamp) + bytes(data))
             self.packets += 1
 
+    def frames(self, msgs: list) -> None:
+        """Parsed MAVLink messages, each logged as its own packet (its frame as received), all with one
+        timestamp: what a link handed over at once."""
+        stamp = _TS.pack(int(time.time() * 1e6))
+        data = b"".join([stamp + m.get_msgbuf() for m in msgs])
+        with self._lock:
+            if self.closed:
+                return
+            self._tlog.write(data)
+            self.packets += len(msgs)
+
     def datagram(self, data: bytes) -> None:
         """A datagram that may hold several frames: each frame is logged as its own packet."""
         with self._lock:
@@ -137,8 +148,8 @@ class Recorder:
                 self.packet(m.get_msgbuf())
 
     def tap_link(self, link: Any) -> None:
-        """Record every packet a MavlinkLink receives (listener) and sends (its writer)."""
-        link.add_listener(lambda msg: self.packet(msg.get_msgbuf()))
+        """Record every packet a MavlinkLink receives (a batch listener) and sends (its writer)."""
+        link.add_batch_listener(self.frames)
         mav = link.mav
         inner = mav.file
         recorder = self

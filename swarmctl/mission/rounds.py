@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmctl.mission.agent import Agent, State
-from swarmctl.mission.flight import fly, held, sense_and_share
+from swarmctl.mission.flight import fly_all, held, sense_and_share
 from swarmctl.mission.launch import rejoin
 from swarmctl.mission.watch import watch
 from swarmctl.world.moves import MOVE_NAMES, MOVES
@@ -180,7 +180,7 @@ async def decision_round(c: Controller) -> bool:
             record["by"] = ch.by
         records.append(record)
     since = time.monotonic()
-    reached = await asyncio.gather(*(fly(c, a, cell, timing.step_timeout) for a, cell in moves))
+    reached = await fly_all(c, moves, timing.step_timeout)
     waited = time.monotonic() - since
     for (a, cell), ok in zip(moves, reached):
         if not ok:

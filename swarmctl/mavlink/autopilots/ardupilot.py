@@ -49,6 +49,7 @@ PREARM_LAG_S = 1.0
 # a requested message that has not come (or has stopped) for this long, or three of its periods, is
 # asked for again: SITL starts its streams 1.4 s after the first heartbeat
 STREAM_PATIENCE_S = 3.0
+KEEP_TELEMETRY_S = 0.25  # how often the driver looks for telemetry that is overdue
 _WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
 
@@ -75,6 +76,7 @@ TELEMETRY = (
 )
 
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
+_FOLLOWED = ("GLOBAL_POSITION_INT", "HEARTBEAT")  # what _on_message follows
 
 
 def fence_items(mav: Any, target_system: int, target_component: int, vertices: list[tuple[float, float]]) -> list[Any]:
@@ -131,13 +133,16 @@ class ArduPilotVehicle(Vehicle):
         self.target: Target | None = None
         self.odometer = Odometer()
         self._target_sent = 0.0
-        self._telemetry_task: asyncio.Task | None = None
+        self._telemetry_timer: asyncio.TimerHandle | None = None  # the check for overdue telemetry
+        self._asking: asyncio.Task | None = None  # asking again for overdue telemetry
         self.unsupported: set[str] = set()  # telemetry messages the vehicle refused to stream
         self.requests: Counter[str] = Counter()  # SET_MESSAGE_INTERVAL sent, per message
         self._asked: dict[str, float] = {}  # message -> when it was last asked for (time.monotonic())
         self._expected_since: dict[str, float] = {}  # after_ekf messages: since when they are due
         self._mode_since: tuple[int | None, float] = (None, 0.0)  # the reported mode and since when
         self._listening = False
+        self._position_of: Any = None  # the GLOBAL_POSITION_INT `_position` was made from
+        self._position: Position | None = None
 
     @classmethod
     async def open(
@@ -147,9 +152,10 @@ class ArduPilotVehicle(Vehicle):
         link = await MavlinkLink(connection, signing_key=signing_key).open()
         return cls(link, sysid, owns_link=True, **kw)
 
-    def add_listener(self, callback: Any) -> bool:
-        """Every message of the link (which may carry other vehicles too) goes to callback(msg)."""
-        self.link.add_listener(callback)
+    def add_listener(self, callback: Any, types: Any = None) -> bool:
+        """Every message of the link (which may carry other vehicles too), or those of `types`, goes to
+        callback(msg)."""
+        self.link.add_listener(callback, types)
         return True
 
     def write_frame(self, frame: bytes) -> bool:
@@ -175,22 +181,20 @@ class ArduPilotVehicle(Vehicle):
         for a message that does not come or stops."""
         await self.link.wait_heartbeat(self.sysid, timeout)
         if not self._listening:
-            self.link.add_listener(self._on_message)
+            self.link.add_listener(self._on_message, _FOLLOWED)
             self._listening = True
         await self.request_telemetry()
-        if self._telemetry_task is None:
-            self._telemetry_task = asyncio.create_task(self._keep_telemetry())
+        if self._telemetry_timer is None:
+            self._telemetry_timer = asyncio.get_running_loop().call_later(KEEP_TELEMETRY_S, self._keep_telemetry)
 
     def _on_message(self, msg: Any) -> None:
         """Follows this vehicle's reports: positions into the odometer, the mode's changes."""
         if msg.get_srcSystem() != self.sysid:
             return
-        mtype = msg.get_type()
-        if mtype == "GLOBAL_POSITION_INT":
-            pos = self.position
-            if pos is not None:
-                self.odometer.add(pos)
-        elif mtype == "HEARTBEAT" and msg.custom_mode != self._mode_since[0]:
+        if msg.get_type() == "GLOBAL_POSITION_INT":
+            if msg.lat != 0 or msg.lon != 0:  # a position (see `position`), its figures as `position` gives them
+                self.odometer.add_fix(from_deg_e7(msg.lat), from_deg_e7(msg.lon), msg.relative_alt / 1000.0)
+        elif msg.custom_mode != self._mode_since[0]:  # a HEARTBEAT
             self._mode_since = (msg.custom_mode, time.monotonic())
 
     async def request_telemetry(self, streams: tuple[Stream, ...] | list[Stream] = TELEMETRY) -> None:
@@ -234,20 +238,24 @@ class ArduPilotVehicle(Vehicle):
         last = max(peer.received_at.get(stream.name, 0.0), self._asked.get(stream.name, 0.0), since)
         return now - last > patience
 
-    async def _keep_telemetry(self) -> None:
-        """Ask again for the messages that are overdue (each alone), while the vehicle's heartbeats come."""
-        while True:
-            await asyncio.sleep(0.25)
-            if self.lost:
-                continue
-            now = time.monotonic()
-            due = [s for s in TELEMETRY if self.overdue(s, now)]
-            if due:
-                log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
-                try:
-                    await self.request_telemetry(due)
-                except MavlinkError as exc:
-                    log.info("%s: telemetry request failed: %s", self.name, exc)
+    def _keep_telemetry(self) -> None:
+        """Every KEEP_TELEMETRY_S (a timer, not a task: it runs for every vehicle all the time), while the
+        vehicle's heartbeats come: ask again for the messages that are overdue, each alone (one request
+        at a time; the checks pause while it is in flight)."""
+        self._telemetry_timer = asyncio.get_running_loop().call_later(KEEP_TELEMETRY_S, self._keep_telemetry)
+        if self.lost or (self._asking is not None and not self._asking.done()):
+            return
+        now = time.monotonic()
+        due = [s for s in TELEMETRY if self.overdue(s, now)]
+        if due:
+            self._asking = asyncio.ensure_future(self._ask_again(due))
+
+    async def _ask_again(self, due: list[Stream]) -> None:
+        log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
+        try:
+            await self.request_telemetry(due)
+        except MavlinkError as exc:
+            log.info("%s: telemetry request failed: %s", self.name, exc)
 
     # --- readiness -------------------------------------------------------------------------------------
 
@@ -396,8 +404,13 @@ class ArduPilotVehicle(Vehicle):
         )
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
+        self.goto_nowait(lat, lon, rel_alt)
+
+    def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
+        """SET_POSITION_TARGET_GLOBAL_INT has no answer: sent at once."""
         self.target = Target(lat, lon, rel_alt)
         self._send_target()
+        return True
 
     def _send_target(self) -> None:
         t = self.target
@@ -506,7 +519,7 @@ class ArduPilotVehicle(Vehicle):
 
         started = time.monotonic()
         resend, sent, attempts, restarted = count, -1, 1, False
-        self.link.add_listener(listen)
+        self.link.add_listener(listen, _UPLOAD_ANSWERS)
         try:
             self.link.send(count)
             while True:
@@ -552,13 +565,16 @@ class ArduPilotVehicle(Vehicle):
             self.link.remove_listener(listen)
 
     async def close(self) -> None:
-        if self._telemetry_task is not None:
-            self._telemetry_task.cancel()
+        if self._telemetry_timer is not None:
+            self._telemetry_timer.cancel()
+            self._telemetry_timer = None
+        if self._asking is not None:
+            self._asking.cancel()
             try:
-                await self._telemetry_task
+                await self._asking
             except asyncio.CancelledError:
                 pass
-            self._telemetry_task = None
+            self._asking = None
         if self._listening:
             self.link.remove_listener(self._on_message)
             self._listening = False
@@ -580,7 +596,10 @@ class ArduPilotVehicle(Vehicle):
         m = self._msg("GLOBAL_POSITION_INT")
         if m is None or (m.lat == 0 and m.lon == 0):
             return None  # ArduPilot reports 0,0 until its EKF has an origin
-        return Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
+        if m is not self._position_of:  # converted once per report, when first read
+            self._position_of = m
+            self._position = Position(from_deg_e7(m.lat), from_deg_e7(m.lon), m.relative_alt / 1000.0, m.alt / 1000.0)
+        return self._position
 
     @property
     def home(self) -> Home | None:

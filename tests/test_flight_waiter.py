@@ -1,0 +1,108 @@
+"""One waiter for a round's flights (swarmctl.mission.flight.fly_all): each vehicle's outcome and its
+own timeout, the driver's resends while waiting, a driver that must wait for its goto, stop and link loss."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from types import SimpleNamespace
+
+import pytest
+
+from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mission.flight import fly_all
+from tests.mavlink_support import run
+from tests.mission_support import small_grid
+
+
+class FakeVehicle:
+    """Reaches its target `arrive_after` seconds after it was sent (None: never); `answers` False: its
+    driver waits for an answer to each position target (as PX4's does), so it has no goto_nowait."""
+
+    def __init__(self, arrive_after: float | None, answers: bool = True):
+        self.arrive_after, self.answers = arrive_after, answers
+        self.lost = False
+        self.position = None
+        self.sent: float | None = None
+        self.target = None
+        self.kept = 0
+
+    def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
+        if not self.answers:
+            return False
+        self.target, self.sent = (lat, lon, rel_alt), time.monotonic()
+        return True
+
+    async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
+        await asyncio.sleep(0.05)  # the vehicle's answer
+        self.target, self.sent = (lat, lon, rel_alt), time.monotonic()
+
+    def reached(self, tolerance: float) -> bool:
+        if self.sent is None or self.arrive_after is None:
+            return False
+        return time.monotonic() - self.sent >= self.arrive_after
+
+    async def keep_going(self) -> None:
+        self.kept += 1
+
+
+def controller():
+    flight = SimpleNamespace(reach_tolerance=1.0)
+    return SimpleNamespace(
+        grid=small_grid(),
+        guard=SimpleNamespace(setpoint_altitude=lambda: 40.0),
+        plan=SimpleNamespace(spec=SimpleNamespace(flight=flight)),
+        stopping=False,
+    )
+
+
+def agent(name: str, vehicle: FakeVehicle):
+    return SimpleNamespace(name=name, vehicle=vehicle, cell=(0, 0), watch_from=None)  # not watched: no course
+
+
+def test_each_flight_ends_on_its_own_arrival_or_timeout():
+    c = controller()
+    fast, never, answering = FakeVehicle(0.1), FakeVehicle(None), FakeVehicle(0.2, answers=False)
+    moves = [(agent("fast", fast), (1, 0)), (agent("never", never), (0, 1)), (agent("px4", answering), (2, 0))]
+
+    async def scenario():
+        started = time.monotonic()
+        out = await fly_all(c, moves, 0.6)
+        return out, time.monotonic() - started
+
+    (reached, took) = run(scenario())
+    assert reached == [True, False, True]
+    assert 0.6 <= took < 1.2  # the waiter ends with the last one: the timeout of the one that never arrives
+    assert fast.target == (*c.grid.cell_to_latlon(1, 0), 40.0) and answering.target is not None
+    assert never.kept >= 5  # its driver was given the chance to resend while it waited
+
+
+def test_stop_and_link_loss_end_the_wait_at_once_and_count_as_no_timeout():
+    c = controller()
+    lost, stopped = FakeVehicle(None), FakeVehicle(None)
+
+    async def scenario():
+        async def trouble():
+            await asyncio.sleep(0.1)
+            lost.lost = True
+            await asyncio.sleep(0.1)
+            c.stopping = True
+
+        started = time.monotonic()
+        helper = asyncio.ensure_future(trouble())
+        out = await fly_all(c, [(agent("lost", lost), (1, 1)), (agent("stopped", stopped), (2, 2))], 30.0)
+        await helper
+        return out, time.monotonic() - started
+
+    reached, took = run(scenario())
+    assert reached == [True, True] and took < 1.0
+
+
+def test_a_blocked_cell_is_refused_before_any_target_goes_out():
+    c = controller()
+    ok = FakeVehicle(0.0)
+    blocked = tuple(int(v) for v in next(zip(*c.grid.blocked.nonzero())))
+
+    with pytest.raises(MavlinkError, match="blocked cell"):
+        run(fly_all(c, [(agent("ok", ok), (0, 0)), (agent("bad", FakeVehicle(0.0)), blocked)], 1.0))
+    assert ok.target is None

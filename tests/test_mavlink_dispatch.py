@@ -1,0 +1,107 @@
+"""How received messages reach the loop: listeners by type, batch listeners, every link's messages in
+order and each once (the loop's inbox gathers what several links' readers hand over)."""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from swarmctl.mavlink.network import MAV, MavlinkLink
+from tests.mavlink_support import our_threads, run
+
+
+class _Frames:
+    """A pymavlink writer that keeps each packed frame."""
+
+    def __init__(self) -> None:
+        self.frames: list[bytes] = []
+
+    def write(self, data: bytes) -> None:
+        self.frames.append(bytes(data))
+
+
+def frames(sysid: int, count: int) -> list[bytes]:
+    """`count` frames from system `sysid`: HEARTBEATs and SYS_STATUSes in turn (sequence numbers 0, 1, ...)."""
+    out = _Frames()
+    mav = mavlink2.MAVLink(out, srcSystem=sysid, srcComponent=1)
+    for i in range(count):
+        if i % 2:
+            mav.send(mav.sys_status_encode(0, 0, 0, 0, 12000, -1, 80, 0, 0, 0, 0, 0, 0))
+        else:
+            mav.send(mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, MAV.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 4, 4))
+    return out.frames
+
+
+async def until(condition, timeout: float = 5.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, "timed out"
+        await asyncio.sleep(0.01)
+
+
+def test_listeners_get_their_types_and_batches_hold_every_frame_once_in_order():
+    async def scenario():
+        links = [await MavlinkLink("udpin:127.0.0.1:0").open() for _ in range(2)]
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            typed, everything, batches = ([], []), ([], []), ([], [])
+            status = [lambda m, i=i: typed[i].append(m.get_type()) for i in range(2)]
+            for i, link in enumerate(links):
+                link.add_listener(status[i], ("SYS_STATUS",))
+                link.add_listener(lambda m, i=i: everything[i].append(m.get_seq()))
+                link.add_batch_listener(lambda ms, i=i: batches[i].append([m.get_seq() for m in ms]))
+            sent = [frames(sysid, 60) for sysid in (3, 4)]
+            for a, b in zip(*sent):  # interleaved, one datagram each, and some bad data on the first link
+                sock.sendto(a, ("127.0.0.1", links[0].local_port))
+                sock.sendto(b, ("127.0.0.1", links[1].local_port))
+            sock.sendto(b"\xfd\x09not a frame", ("127.0.0.1", links[0].local_port))
+            await until(lambda: len(everything[0]) == 60 and len(everything[1]) == 60 and links[0].stats.bad_data)
+            # a listener removed hears nothing more; the others do
+            links[0].remove_listener(status[0])
+            for frame in frames(3, 2):
+                sock.sendto(frame, ("127.0.0.1", links[0].local_port))
+            await until(lambda: len(everything[0]) == 62)
+            return typed, everything, batches, [link.stats.received for link in links], links[0].peers[3].messages
+        finally:
+            sock.close()
+            for link in links:
+                await link.close()
+
+    typed, everything, batches, received, latest = run(scenario())
+    assert typed == (["SYS_STATUS"] * 30, ["SYS_STATUS"] * 30)
+    assert everything == (list(range(60)) + [0, 1], list(range(60)))
+    assert [seq for batch in batches[0] for seq in batch] == everything[0]  # each frame once, in order
+    assert [seq for batch in batches[1] for seq in batch] == everything[1]
+    assert received == [62, 60]
+    assert latest["SYS_STATUS"].get_seq() == 1 and latest["HEARTBEAT"].get_seq() == 0
+    assert our_threads() == []
+
+
+def test_a_failing_listener_does_not_stop_the_others():
+    async def scenario():
+        link = await MavlinkLink("udpin:127.0.0.1:0").open()
+        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            heard, batches = [], []
+
+            def broken(_msg):
+                raise ValueError("a listener's bug")
+
+            def broken_batch(_msgs):
+                raise ValueError("a batch listener's bug")
+
+            link.add_listener(broken, ("HEARTBEAT",))
+            link.add_batch_listener(broken_batch)
+            link.add_listener(lambda m: heard.append(m.get_type()), ("HEARTBEAT",))
+            link.add_batch_listener(lambda ms: batches.append(len(ms)))
+            for frame in frames(5, 4):
+                sock.sendto(frame, ("127.0.0.1", link.local_port))
+            await until(lambda: sum(batches) == 4)
+            return heard
+        finally:
+            sock.close()
+            await link.close()
+
+    assert run(scenario()) == ["HEARTBEAT", "HEARTBEAT"]
