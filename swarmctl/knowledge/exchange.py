@@ -103,8 +103,13 @@ class KnowledgeExchange:
         self.push_fanout = int(push_fanout)
         self._now = 0  # the latest step given to `step`/`publish`
         self._requested_at: dict[int, int] = {}  # digest chunk -> step of our last request for it
-        self._learned_at = np.full((knowledge.width, knowledge.height), NEVER, dtype=np.int64)
-        self._noted = np.zeros((knowledge.width, knowledge.height), dtype=bool)  # _learned_at != NEVER
+        # when each cell became known (push rule): views of the knowledge's stack row, so the agents of
+        # one stack can be stepped at once (swarmctl.knowledge.stepping)
+        stack, row = knowledge._stack, knowledge._row
+        self._learned_at = stack.learned_at[row]
+        self._noted = stack.noted[row]  # _learned_at != NEVER
+        self._learned_at[...] = NEVER
+        self._noted[...] = False
         self.system_id = knowledge.vehicle_id + 1 if system_id is None else int(system_id)
         self.codec = KnowledgeCodec(
             mission_id, knowledge.width, knowledge.height, system_id=self.system_id, signing_key=signing_key
@@ -212,9 +217,13 @@ class KnowledgeExchange:
     def publish(self, step: int) -> None:
         """Broadcast the delta; on this vehicle's digest steps also the digest and the known targets.
         Digests are staggered: vehicle v sends them when (step + v) % digest_every == 0."""
+        self._publish(step, self.knowledge.take_delta())
+
+    def _publish(self, step: int, delta: Delta) -> None:
+        """`publish` with the delta taken already (swarmctl.knowledge.stepping takes all agents' at once)."""
         self._now = max(self._now, int(step))
         self.budget.period(self._now // max(self.digest_every, 1))
-        self._send(self.knowledge.take_delta())
+        self._send(delta)
         self.stats["deltas"] += 1
         if self.digest_every > 0 and step > 0 and (step + self.vehicle_id) % self.digest_every == 0:
             self.publish_digest()

@@ -294,7 +294,7 @@ class Knowledge:
         self.obstacle = st.obstacle[row]  # False where unexplored
         self._position = st.position[row]
         self._target_step = st.target_step[row]
-        self._pending = np.zeros((self.width, self.height), dtype=bool)  # own finds not yet published
+        self._pending = st.pending[row]  # own finds not yet published
 
     @property
     def positions(self) -> PositionTable:

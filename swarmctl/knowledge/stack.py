@@ -6,12 +6,15 @@
 
 Every `swarmctl.knowledge.model.Knowledge` keeps its state in one row of a stack: explored, phi_q and
 obstacle (N, W, H), the positions it knows (N, 256: one column per vehicle id, each an int64 key that
-orders like Position.order(); -1 unknown) and the earliest step of each target cell it knows (N, W, H;
-NEVER where none). A Knowledge made on its own holds a stack of one row; the agents of a ground-mode
-process (swarmctl.knowledge.bus with a stack) hold one row each of the same stack, so what the bus
-delivers to all of them is merged in a few numpy operations instead of one Python merge per agent and
-message. The merges are the same join (logical or, max, newest position, earliest target step), so
-the result is exactly that of merging each message into each receiver one by one, in any order.
+orders like Position.order(); -1 unknown), the earliest step of each target cell it knows (N, W, H;
+NEVER where none) and the cells it sensed itself and has not published yet (pending). The stack also
+holds each row's exchange bookkeeping for the push rule (learned_at, noted: KnowledgeExchange), so one
+round's step of every agent of a process is a few array operations (swarmctl.knowledge.stepping). A
+Knowledge made on its own holds a stack of one row; the agents of a ground-mode process
+(swarmctl.knowledge.bus with a stack) hold one row each of the same stack, so what the bus delivers to
+all of them is merged in a few numpy operations instead of one Python merge per agent and message.
+The merges are the same join (logical or, max, newest position, earliest target step), so the result
+is exactly that of merging each message into each receiver one by one, in any order.
 """
 
 from __future__ import annotations
@@ -67,6 +70,11 @@ class KnowledgeStack:
         self.obstacle = np.zeros(shape, dtype=bool)  # False where unexplored
         self.position = np.full((self.rows, self.ids), UNKNOWN, dtype=np.int64)
         self.target_step = np.full(shape, NEVER, dtype=np.int64)
+        self.pending = np.zeros(shape, dtype=bool)  # own finds not yet published (Knowledge.take_delta)
+        # the push rule's bookkeeping of each row's exchange (swarmctl.knowledge.exchange): the step at
+        # which each cell became known (NEVER: not yet), and where that was noted
+        self.learned_at = np.full(shape, NEVER, dtype=np.int64)
+        self.noted = np.zeros(shape, dtype=bool)
         self._views: dict[int, Knowledge] = {}
 
     def knowledge(self, row: int, vehicle_id: int | None = None) -> Knowledge:

@@ -16,10 +16,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from swarmctl.knowledge.stepping import step_all
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
-from swarmctl.mission.sensing import sense
+from swarmctl.mission.sensing import Sensed, footprints, sense
 from swarmctl.mission.watch import off_course
 
 if TYPE_CHECKING:
@@ -151,20 +152,84 @@ async def _wait(c: Controller, flights: list[_Flight], sending: list[asyncio.Tas
 async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:
     """Sense (the footprint round the cell reached, when the vehicle arrived somewhere new and is not off
     course; with a detector, after waiting for its report there) and publish; returns the targets it saw."""
-    kn, ex = a.knowledge, a.exchange
     if a.cell is None:
         return []
     on_target = a.state is State.HOVER
+    moved = _arrived(c, a, moved)
+    if moved and a.detector is not None:
+        reports = await _wait_reports(c, a, since)
+    else:
+        reports = _take_reports(a)
+    sensed = sense(c.grid, c.plan.fov, a.cell if moved else None, reports, a.visited)
+    found, fresh = _found(a, sensed)
+    a.exchange.step(c.step, a.cell, on_target, sensed.cells, sensed.phi, sensed.obstacle)
+    _report(c, a, sensed, found, fresh)
+    return found
+
+
+async def sense_and_share_all(c: Controller, agents: list[Agent], moved: set[int], since: float) -> None:
+    """`sense_and_share` for each agent (those in `moved` arrived at a new cell), the detectors' reports
+    awaited together, then the knowledge step of all of them at once (swarmctl.knowledge.stepping: in
+    ground mode a few array operations for every agent, then each one's frames in the agents' order)."""
+    agents = [a for a in agents if a.cell is not None]
+    on_target = [a.state is State.HOVER for a in agents]
+    arrived = [_arrived(c, a, a.index in moved) for a in agents]
+    reports: list[list] = [[] for _ in agents]
+    waiting = [i for i, a in enumerate(agents) if arrived[i] and a.detector is not None]
+    for i, a in enumerate(agents):
+        if not (arrived[i] and a.detector is not None):
+            reports[i] = _take_reports(a)
+    if waiting:
+        got = await asyncio.gather(*(_wait_reports(c, agents[i], since) for i in waiting))
+        for i, r in zip(waiting, got):
+            reports[i] = r
+    plain = [i for i, a in enumerate(agents) if arrived[i] and not reports[i]]  # the footprint alone
+    prints = footprints(c.grid, c.plan.fov, [agents[i].cell for i in plain])
+    sensed = [Sensed() for _ in agents]
+    for i, p in zip(plain, prints):
+        sensed[i] = p
+    for i, a in enumerate(agents):
+        if reports[i]:
+            sensed[i] = sense(c.grid, c.plan.fov, a.cell if arrived[i] else None, reports[i], a.visited)
+    finds = [_found(a, s) for a, s in zip(agents, sensed)]
+
+    def then(i: int) -> None:
+        _report(c, agents[i], sensed[i], *finds[i])
+
+    step_all(
+        [a.exchange for a in agents],
+        c.step,
+        [a.cell for a in agents],
+        on_target,
+        [(s.cells, s.phi, s.obstacle) for s in sensed],
+        then,
+    )
+
+
+def _arrived(c: Controller, a: Agent, moved: bool) -> bool:
+    """Whether the agent senses at its cell this round (it moved there and is not off course); notes
+    the visit."""
     if moved and off_course(c, a, a.cell):
         moved = False  # steered away before it got there: nothing sensed there (swarmctl.mission.watch)
     if moved:
         a.visited[a.cell] = c.step
-        if a.detector is not None:
-            report = await a.feed.wait_report(
-                a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
-            )
-            if report is None:
-                c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)
+    return moved
+
+
+async def _wait_reports(c: Controller, a: Agent, since: float) -> list:
+    """Wait for the detector's report for the agent's cell (an event when none comes), then every
+    report received."""
+    report = await a.feed.wait_report(
+        a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
+    )
+    if report is None:
+        c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)
+    return _take_reports(a)
+
+
+def _take_reports(a: Agent) -> list:
+    """The detector reports received since the last call (a warning, once, when the mission gives the
+    agent no detector)."""
     reports = a.feed.take_new()
     if reports and a.detector is None and not a.unexpected_reports:
         a.unexpected_reports = True
@@ -173,23 +238,33 @@ async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) ->
             'but the controller does not wait for them: add detector = "mavlink" to its [[vehicles]] table',
             a.name,
         )
-    sensed = sense(c.grid, c.plan.fov, a.cell if moved else None, reports, a.visited)
+    return reports
+
+
+def _found(a: Agent, sensed: Sensed) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """The targets sensed, and those of them the agent did not know yet."""
+    found = [(int(x), int(y)) for x, y in sensed.targets]
+    return found, [t for t in found if t not in a.knowledge.targets]
+
+
+def _report(
+    c: Controller, a: Agent, sensed: Sensed, found: list[tuple[int, int]], fresh: list[tuple[int, int]]
+) -> None:
+    """After the agent's step: its dropped report entries and the new targets, reported (DETECTIONs with
+    the step and cell they were seen from, which the others check) and recorded."""
     if sensed.dropped:
         a.sensor_dropped += sensed.dropped
         c.rec.event("report_dropped", vehicle=a.name, step=c.step, dropped=sensed.dropped)
-    found = [(int(x), int(y)) for x, y in sensed.targets]
-    fresh = [t for t in found if t not in kn.targets]
-    ex.step(c.step, a.cell, on_target, sensed.cells, sensed.phi, sensed.obstacle)
+    if not fresh:
+        return
     seen: dict[tuple[int, int], list[tuple[int, int]]] = {}
     for t, origin in zip(found, sensed.seen_from.tolist()):
         if t in fresh:
             seen.setdefault((int(origin[0]), int(origin[1])), []).append(t)
-    for origin, targets in seen.items():  # with the step and cell they were seen from (the others check it)
-        ex.report_targets(np.array(targets, dtype=np.int64), a.visited.get(origin, c.step), seen_from=origin)
-    if fresh:
-        latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
-        c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
-    return found
+    for origin, targets in seen.items():
+        a.exchange.report_targets(np.array(targets, dtype=np.int64), a.visited.get(origin, c.step), seen_from=origin)
+    latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
+    c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
 
 
 async def cancel(task: asyncio.Future) -> None:

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmctl.mission.agent import Agent, State
-from swarmctl.mission.flight import fly_all, held, sense_and_share
+from swarmctl.mission.flight import fly_all, held, sense_and_share_all
 from swarmctl.mission.launch import rejoin
 from swarmctl.mission.watch import watch
 from swarmctl.world.moves import MOVE_NAMES, MOVES
@@ -190,7 +190,7 @@ async def decision_round(c: Controller) -> bool:
     moved = {a.index for a, _ in moves}
     live = [a for a in c.agents if a.state in (State.SEARCH, State.HOVER)]
     t = time.monotonic()
-    await asyncio.gather(*(sense_and_share(c, a, a.index in moved, since) for a in live))
+    await sense_and_share_all(c, live, moved, since)
     c.wait_times.append(waited + time.monotonic() - t)
     others = [
         dict(vehicle=a.name, sysid=a.spec.sysid, state=a.state, cell=a.cell, received=a.received_since())

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from swarmctl.knowledge.model import disc_cells
+from swarmctl.world.scenario import fov_offsets
 
 
 def _none() -> np.ndarray:
@@ -51,6 +52,26 @@ class Sensed:
 def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
     """(N, 2) cells of the footprint round `cell` that lie on the grid."""
     return disc_cells(cell, grid.width, grid.height, fov)
+
+
+def footprints(grid: Any, fov: float, cells: list[tuple[int, int]]) -> list[Sensed]:
+    """What `sense(grid, fov, cell, [], visited)` gives for each of `cells` (the footprint alone, with
+    the grid's obstacles and phi 0), the footprints of all of them computed in one array operation."""
+    if not cells:
+        return []
+    offsets = fov_offsets(float(fov))
+    c = np.asarray(cells, dtype=np.int64).reshape(-1, 1, 2) + offsets  # (A, D, 2)
+    x, y = c[..., 0], c[..., 1]
+    inside = (x >= 0) & (x < grid.width) & (y >= 0) & (y < grid.height)
+    blocked = np.asarray(grid.blocked, dtype=bool)[np.where(inside, x, 0), np.where(inside, y, 0)]
+    zeros = np.zeros(offsets.shape[0], dtype=np.float32)
+    out = []
+    for i, keep in enumerate(inside):
+        if keep.all():
+            out.append(Sensed(c[i], zeros, blocked[i]))
+        else:
+            out.append(Sensed(c[i][keep], zeros[: int(keep.sum())], blocked[i][keep]))
+    return out
 
 
 def in_footprint(cells: np.ndarray, cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
