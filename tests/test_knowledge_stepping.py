@@ -1,6 +1,6 @@
-"""One knowledge step for all agents of a stacked ideal bus (swarmctl.knowledge.stepping) against the
-per-agent path (KnowledgeExchange.step agent by agent): same frames on each link, in the same order,
-same knowledge and bookkeeping, same counters, same bus deliveries."""
+"""One knowledge step and one poll for all agents of a stacked ideal bus (swarmctl.knowledge.stepping)
+against the per-agent path (KnowledgeExchange.step and poll agent by agent): same frames on each link,
+in the same order, same knowledge and bookkeeping, same counters, same bus deliveries."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from swarmctl.knowledge.bus import KnowledgeBus
 from swarmctl.knowledge.exchange import KnowledgeExchange
 from swarmctl.knowledge.model import disc_cells
 from swarmctl.knowledge.stack import KnowledgeStack
-from swarmctl.knowledge.stepping import batchable, step_all
+from swarmctl.knowledge.stepping import batchable, poll_all, step_all
 from swarmctl.mission.sensing import footprints, sense
 from swarmctl.world.channel import Channel
 
@@ -96,9 +96,7 @@ def test_a_batched_round_is_the_per_agent_round(rounds, digest_every):
             ex.step(step, args[0][i], args[1][i], *(s if s is not None else (None, None, None)))
             targets(ref[1], i)
         step_all([got[1][i] for i in live], step, *args, then=lambda i: targets(got[1], i))
-        for bus, _exchanges, _links in (ref, got):
-            for ex in bus.members:
-                ex.poll(0.0)
+        assert sum(ex.poll(0.0) for ex in ref[0].members) == poll_all(got[0].members)
         a, b = state(*ref), state(*got)
         for name in a[0]:
             assert np.array_equal(a[0][name], b[0][name]), name

@@ -2,6 +2,7 @@
 rows of one stack on an ideal stacked bus (swarmctl.knowledge.bus, swarmctl.knowledge.stack).
 
     step_all(exchanges, step, cells, on_target, sensed)   # ex.step(step, cell, on, *sensed) for each, in order
+    poll_all(exchanges)                                   # ex.poll(0.0) for each
 
 KnowledgeExchange.step does, per agent: set the own position, sense the footprint's cells, note the
 cells it has learnt (push rule), take the delta of the cells it sensed and publish it (and, on its
@@ -12,6 +13,9 @@ gives the same knowledge, the same frames on each link in the same order, the sa
 the same counters as calling `step` agent by agent (pinned by tests/test_knowledge_stepping.py). What
 stays per agent is what must: encoding the delta, writing its frames on the agent's link and
 publishing them on the bus (each message through the trust checks), the digests.
+
+Polling: on such a bus the first poll of a round merges what every member was sent (the bus's batch)
+and the others only take their counts; `poll_all` does that once for all instead of one call each.
 
 A lossy bus draws each frame's loss from the receiver's position when the frame is published, so there
 the order of the agents' position updates and sends matters: such exchanges (and UDP ones, and any
@@ -40,6 +44,19 @@ def batchable(exchanges: Sequence[KnowledgeExchange]) -> bool:
     if bus is None or not bus.ideal or bus.stack is None or bus._batch is None or not bus._batch.stacked:
         return False
     return all(ex.bus is bus and ex.knowledge._stack is bus.stack for ex in exchanges)
+
+
+def poll_all(exchanges: Sequence[KnowledgeExchange]) -> int:
+    """`ex.poll(0.0)` for each exchange (what arrived merged, digests and requests answered); returns
+    how many messages they handled in all."""
+    if not batchable(exchanges):
+        return sum(ex.poll(0.0) for ex in exchanges)
+    batch = exchanges[0].bus._batch
+    batch.flush()
+    handled = 0
+    for ex in exchanges:
+        handled += ex.poll(0.0) if ex._inbox else batch.handled.pop(ex, 0)
+    return handled
 
 
 def step_all(

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from swarmctl.knowledge.stepping import poll_all
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.flight import fly_all, held, sense_and_share_all
 from swarmctl.mission.launch import rejoin
@@ -44,8 +45,8 @@ async def search(c: Controller) -> None:
     c.search_started = time.monotonic()
     while True:
         t0, cpu0 = time.monotonic(), time.thread_time()
+        poll_all([a.exchange for a in c.agents])
         for a in c.agents:
-            a.exchange.poll(0.0)
             a.track()
         update_states(c)
         await watch(c)  # what was not commanded (swarmctl.mission.watch)
