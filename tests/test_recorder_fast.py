@@ -1,0 +1,76 @@
+"""The recorder's fast paths write what the plain encoding writes: knowledge lines (stacked maps,
+one compressed map for the vehicles that know the same) and the rounds' batched events, line for line
+the same text but for the time stamps."""
+
+import base64
+import json
+import time
+import zlib
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from swarmctl.knowledge.model import Knowledge
+from swarmctl.mission.recorder import Recorder
+
+W, H = 7, 5
+
+
+def _reference_knowledge(known: dict, step: int, views) -> list[dict]:
+    """The knowledge lines as the recorder first wrote them, one vehicle at a time."""
+    out = []
+    for name, kn in views:
+        cells, targets = int(np.count_nonzero(kn.explored)), len(kn.targets)
+        if known.get(name) == (cells, targets):
+            continue
+        known[name] = (cells, targets)
+        packed = zlib.compress(np.packbits(np.asarray(kn.explored, dtype=bool).reshape(-1)).tobytes(), 6)
+        out.append(
+            {
+                "t": 0,
+                "event": "knowledge",
+                "step": int(step),
+                "vehicle": name,
+                "explored": base64.b64encode(packed).decode("ascii"),
+                "cells": cells,
+                "targets": sorted([int(x), int(y)] for x, y in kn.targets),
+            }
+        )
+    return out
+
+
+maps = st.lists(st.booleans(), min_size=W * H, max_size=W * H).map(lambda b: np.array(b).reshape(W, H))
+cells = st.tuples(st.integers(0, W - 1), st.integers(0, H - 1))
+vehicle = st.tuples(maps, st.dictionaries(cells, st.integers(0, 9), max_size=3))
+rounds = st.lists(st.lists(st.tuples(st.integers(0, 3), vehicle), max_size=5), min_size=1, max_size=4)
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(rounds)
+def test_knowledge_lines_are_the_plain_ones(tmp_path, plan):
+    folder = tmp_path / f"k{time.monotonic_ns()}"
+    rec = Recorder(folder)
+    kns = [Knowledge(W, H, i) for i in range(4)]
+    known: dict = {}
+    expected = []
+    try:
+        for step, changes in enumerate(plan, start=1):
+            for i, (explored, targets) in changes:  # knowledge only grows: or-in the new cells and targets
+                kns[i].explored |= explored
+                table = kns[i].targets
+                for c, s in targets.items():
+                    table[c] = s
+            # vehicles 2 and 3 often know the same as 0 and 1: the shared encoding must not mix them up
+            views = [(f"uav-{i}", kns[i]) for i in (0, 1, 2, 3, 1)]
+            assert rec.knowledge(step, views) == len(ref := _reference_knowledge(known, step, views))
+            expected += ref
+    finally:
+        rec.close()
+    path = folder / "knowledge.jsonl"
+    text = path.read_text().splitlines() if path.exists() else []
+    got = [json.loads(line) for line in text]
+    for line, record in zip(text, got):
+        assert line == json.dumps(record, separators=(",", ":"))  # compact, as json.dumps writes it
+        assert isinstance(record.pop("t"), float)
+    assert got == [{k: v for k, v in e.items() if k != "t"} for e in expected]
