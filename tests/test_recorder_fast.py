@@ -74,3 +74,27 @@ def test_knowledge_lines_are_the_plain_ones(tmp_path, plan):
         assert line == json.dumps(record, separators=(",", ":"))  # compact, as json.dumps writes it
         assert isinstance(record.pop("t"), float)
     assert got == [{k: v for k, v in e.items() if k != "t"} for e in expected]
+
+
+def test_events_at_once_write_the_lines_event_writes(tmp_path):
+    one, many = Recorder(tmp_path / "one"), Recorder(tmp_path / "many")
+    events = [
+        ("refused", dict(vehicle=f"uav-{i}", step=3, cell=(i, 2), proposed=(i, 3), reason="collision"))
+        for i in range(3)
+    ] + [("state", dict(vehicle="uav-0", state="hover", cell=(1, 2)))]
+    try:
+        for kind, fields in events:
+            one.event(kind, **fields)
+        many.events_at_once(events)
+        many.events_at_once([])
+        assert (one.events, one.changes) == (many.events, many.changes) == (4, 1)
+    finally:
+        one.close()
+        many.close()
+
+    def lines(rec):
+        return [{k: v for k, v in json.loads(x).items() if k != "t"} for x in (rec.folder / "events.jsonl").open()]
+
+    assert lines(one) == lines(many)
+    first = dict(event="refused", vehicle="uav-0", step=3, cell=[0, 2], proposed=[0, 3], reason="collision")
+    assert lines(many)[0] == first

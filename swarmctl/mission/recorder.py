@@ -172,15 +172,23 @@ class Recorder:
     # --- events ----------------------------------------------------------------------------------------
     def event(self, kind: str, **fields: Any) -> None:
         """One line of events.jsonl, flushed at once."""
-        line = json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=(",", ":"))
+        self.events_at_once([(kind, fields)])
+
+    def events_at_once(self, events: list[tuple[str, dict]]) -> None:
+        """Lines of events.jsonl, (kind, fields) each, in one write, flushed at once (one step's refusals)."""
+        if not events:
+            return
+        lines = [
+            json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=_SEPARATORS) + "\n"
+            for kind, fields in events
+        ]
         with self._lock:
             if self.closed:
                 return
-            self._events.write(line + "\n")
+            self._events.write(lines[0] if len(lines) == 1 else "".join(lines))
             self._events.flush()
-            self.events += 1
-            if kind in CHANGE_KINDS:
-                self.changes += 1
+            self.events += len(lines)
+            self.changes += sum(kind in CHANGE_KINDS for kind, _ in events)
 
     def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
         """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
