@@ -98,3 +98,29 @@ def test_events_at_once_write_the_lines_event_writes(tmp_path):
     assert lines(one) == lines(many)
     first = dict(event="refused", vehicle="uav-0", step=3, cell=[0, 2], proposed=[0, 3], reason="collision")
     assert lines(many)[0] == first
+
+
+def test_tlog_holds_each_frame_after_its_time_stamp(tmp_path):
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    mav = mavlink2.MAVLink(None, srcSystem=3)
+    msgs = [mav.heartbeat_encode(2, 3, 0, i, 4) for i in range(3)]
+    frames = [bytes(m.pack(mav)) for m in msgs]
+    rec = Recorder(tmp_path)
+    before = int(time.time() * 1e6)
+    try:
+        rec.frames(msgs[:2])
+        rec.frames([])
+        rec.packet(memoryview(frames[2]))
+        rec.packet(bytearray(frames[0]))
+        assert rec.packets == 4
+    finally:
+        rec.close()
+    data = (tmp_path / "mission.tlog").read_bytes()
+    got, at = [], 0
+    for frame in frames[:2] + frames[2:] + frames[:1]:
+        stamp = int.from_bytes(data[at : at + 8], "big")
+        assert before <= stamp <= int(time.time() * 1e6)
+        got.append(data[at + 8 : at + 8 + len(frame)])
+        at += 8 + len(frame)
+    assert at == len(data) and got == frames + frames[:1]

@@ -127,14 +127,16 @@ class Recorder:
         with self._lock:
             if self.closed:
                 return
-            self._tlog.write(_TS.pack(stamp) + bytes(data))
+            self._tlog.write(_TS.pack(stamp) + data)  # bytes + any bytes-like: one new bytes
             self.packets += 1
 
     def frames(self, msgs: list) -> None:
         """Parsed MAVLink messages, each logged as its own packet (its frame as received), all with one
         timestamp: what a link handed over at once."""
+        if not msgs:
+            return
         stamp = _TS.pack(int(time.time() * 1e6))
-        data = b"".join([stamp + m.get_msgbuf() for m in msgs])
+        data = stamp + stamp.join([m.get_msgbuf() for m in msgs])  # stamp, frame, stamp, frame, ...
         with self._lock:
             if self.closed:
                 return
