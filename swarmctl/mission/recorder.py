@@ -18,8 +18,9 @@ summary.json     targets found, time, steps per vehicle, distance flown, message
 Every line's fields, types and units: swarmctl.mission.events (docs/recording.md).
 
 A crash at any moment leaves every file readable up to that moment: each line of events.jsonl,
-knowledge.jsonl and inputs.jsonl is handed to the operating system as it is written (a SIGKILL loses
-at most a line being written, never one already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
+knowledge.jsonl and inputs.jsonl is handed to the operating system as it is written (a step's refusals,
+and its knowledge lines, in one write each; a SIGKILL loses at most the write in progress, never a line
+already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
 replaced whole (written beside, then renamed over), so it is always one complete summary. The files
 are flushed to the operating system, not synced to the disk: a crash of the machine itself may lose more.
 """
