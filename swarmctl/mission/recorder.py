@@ -18,8 +18,9 @@ summary.json     targets found, time, steps per vehicle, distance flown, message
 Every line's fields, types and units: swarmctl.mission.events (docs/recording.md).
 
 A crash at any moment leaves every file readable up to that moment: each line of events.jsonl,
-knowledge.jsonl and inputs.jsonl is handed to the operating system as it is written (a SIGKILL loses
-at most a line being written, never one already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
+knowledge.jsonl and inputs.jsonl is handed to the operating system as it is written (a step's refusals,
+and its knowledge lines, in one write each; a SIGKILL loses at most the write in progress, never a line
+already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
 replaced whole (written beside, then renamed over), so it is always one complete summary. The files
 are flushed to the operating system, not synced to the disk: a crash of the machine itself may lose more.
 """
@@ -27,6 +28,7 @@ are flushed to the operating system, not synced to the disk: a crash of the mach
 from __future__ import annotations
 
 import base64
+import functools
 import json
 import os
 import shutil
@@ -49,7 +51,14 @@ TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (CONTRACTS: at least once a
 CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "end", "end_action", "end_action_failed"})
 
 
+_SEPARATORS = (",", ":")  # compact JSON lines
 _PLAIN = frozenset({str, int, bool, type(None)})  # written as they are
+
+
+@functools.lru_cache(maxsize=4096)
+def _quoted(name: str) -> str:
+    """A string as JSON writes it (the vehicle names, encoded once each)."""
+    return json.dumps(name)
 
 
 def _jsonable(value: Any) -> Any:
@@ -119,14 +128,16 @@ class Recorder:
         with self._lock:
             if self.closed:
                 return
-            self._tlog.write(_TS.pack(stamp) + bytes(data))
+            self._tlog.write(_TS.pack(stamp) + data)  # bytes + any bytes-like: one new bytes
             self.packets += 1
 
     def frames(self, msgs: list) -> None:
         """Parsed MAVLink messages, each logged as its own packet (its frame as received), all with one
         timestamp: what a link handed over at once."""
+        if not msgs:
+            return
         stamp = _TS.pack(int(time.time() * 1e6))
-        data = b"".join([stamp + m.get_msgbuf() for m in msgs])
+        data = stamp + stamp.join([m.get_msgbuf() for m in msgs])  # stamp, frame, stamp, frame, ...
         with self._lock:
             if self.closed:
                 return
@@ -164,39 +175,68 @@ class Recorder:
     # --- events ----------------------------------------------------------------------------------------
     def event(self, kind: str, **fields: Any) -> None:
         """One line of events.jsonl, flushed at once."""
-        line = json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=(",", ":"))
+        self.events_at_once([(kind, fields)])
+
+    def events_at_once(self, events: list[tuple[str, dict]]) -> None:
+        """Lines of events.jsonl, (kind, fields) each, in one write, flushed at once (one step's refusals)."""
+        if not events:
+            return
+        lines = [
+            json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=_SEPARATORS) + "\n"
+            for kind, fields in events
+        ]
         with self._lock:
             if self.closed:
                 return
-            self._events.write(line + "\n")
+            self._events.write(lines[0] if len(lines) == 1 else "".join(lines))
             self._events.flush()
-            self.events += 1
-            if kind in CHANGE_KINDS:
-                self.changes += 1
+            self.events += len(lines)
+            self.changes += sum(kind in CHANGE_KINDS for kind, _ in events)
 
     def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
         """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
-        since its last line (knowledge only grows, so the counts tell); returns how many were written."""
-        lines = []
-        for name, kn in views:
-            cells, targets = int(np.count_nonzero(kn.explored)), len(kn.targets)
-            with self._lock:
-                if self._known.get(name) == (cells, targets):
-                    continue
-                self._known[name] = (cells, targets)
-            packed = zlib.compress(np.packbits(np.asarray(kn.explored, dtype=bool).reshape(-1)).tobytes(), 6)
-            record = {
-                "t": time.time(),
-                "event": "knowledge",
-                "step": int(step),
-                "vehicle": name,
-                "explored": base64.b64encode(packed).decode("ascii"),
-                "cells": cells,
-                "targets": sorted([int(x), int(y)] for x, y in kn.targets),
-            }
-            lines.append(json.dumps(record, separators=(",", ":")) + "\n")  # plain values already
-        if not lines:
+        since its last line (knowledge only grows, so the counts tell); returns how many were written.
+
+        The vehicles' maps are counted and packed as one stacked array, and the vehicles that know the
+        same cells and targets (with ideal sharing, nearly all) share one compressed map and one encoded
+        tail of the line."""
+        views = list(views)
+        if not views:
             return 0
+        explored = np.stack([np.asarray(kn.explored, dtype=bool).reshape(-1) for _, kn in views])
+        counts = np.count_nonzero(explored, axis=1).tolist()
+        changed = []
+        with self._lock:
+            known = self._known
+            for u, (name, kn) in enumerate(views):
+                seen = (counts[u], len(kn.targets))
+                if known.get(name) != seen:
+                    known[name] = seen
+                    changed.append(u)
+        if not changed:
+            return 0
+        packed = np.packbits(explored[changed], axis=1)
+        tails: dict[tuple[bytes, tuple], str] = {}  # (packed map, targets) -> the line's encoded tail
+        lines = []
+        for row, u in zip(packed, changed):
+            name, kn = views[u]
+            targets = list(iter(kn.targets))  # not sorted(table): that asks the table its length too
+            targets.sort()
+            key = (row.tobytes(), tuple(targets))
+            tail = tails.get(key)
+            if tail is None:
+                tail = tails[key] = json.dumps(
+                    {
+                        "explored": base64.b64encode(zlib.compress(key[0], 6)).decode("ascii"),
+                        "cells": counts[u],
+                        "targets": [[int(x), int(y)] for x, y in targets],
+                    },
+                    separators=_SEPARATORS,
+                )
+            # the text json.dumps writes for {"t", "event", "step", "vehicle", then the tail's items}
+            lines.append(
+                f'{{"t":{time.time()!r},"event":"knowledge","step":{int(step)},"vehicle":{_quoted(name)},{tail[1:]}\n'
+            )
         with self._lock:
             if self.closed:
                 return 0

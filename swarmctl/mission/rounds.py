@@ -155,14 +155,13 @@ async def decision_round(c: Controller) -> bool:
         held_cells = [(a.index, a.cell) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
         c.rec.inputs(c.step, [a.name for a in searching], beliefs, held_cells)
     moves: list[tuple[Agent, tuple[int, int]]] = []
-    records = []
+    records, refusals = [], []
     for a, ch in zip(searching, choices):
         d = guarded[a.index]
         if d.refused:
             a.refused += 1
-            c.rec.event(
-                "refused", vehicle=a.name, step=c.step, cell=a.cell, proposed=proposed[a.index], reason=d.refused
-            )
+            refused = dict(vehicle=a.name, step=c.step, cell=a.cell, proposed=proposed[a.index], reason=d.refused)
+            refusals.append(("refused", refused))
         if d.cell != a.cell:
             moves.append((a, d.cell))
         a.steps += 1
@@ -180,6 +179,7 @@ async def decision_round(c: Controller) -> bool:
         if ch.by:  # the move came from a planner, not from the Q-values recorded
             record["by"] = ch.by
         records.append(record)
+    c.rec.events_at_once(refusals)  # before the vehicles fly: one write for the step's refusals
     since = time.monotonic()
     reached = await fly_all(c, moves, timing.step_timeout)
     waited = time.monotonic() - since
