@@ -105,3 +105,36 @@ def test_a_failing_listener_does_not_stop_the_others():
             await link.close()
 
     assert run(scenario()) == ["HEARTBEAT", "HEARTBEAT"]
+
+
+def _parsed(frames_: list[bytes]) -> list:
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    return [m for f in frames_ for m in parser.parse_buffer(f) or []]
+
+
+def test_a_batch_with_bad_and_unknown_frames_reaches_listeners_and_batches_without_them():
+    """The dispatch's fast path: BAD_DATA and unknown ids are counted and left out of the batch, the
+    valid messages reach their listeners in order; a listener added or removed takes effect at once."""
+
+    async def scenario():
+        link = await MavlinkLink("udpin:127.0.0.1:0").open()
+        try:
+            unknown = bytes([0xFD, 1, 0, 0, 9, 5, 1, 0x60, 0xEA, 0]) + b"\x00\x00\x00"  # message id 60000
+            good = frames(5, 4)
+            msgs = _parsed([good[0], unknown, good[1]]) + [mavlink2.MAVLink_bad_data(b"\xfdjunk", "bad")]
+            msgs += _parsed(good[2:])
+            everything, statuses, batches = [], [], []
+            link.add_listener(lambda m: everything.append(m.get_seq()))
+            link.add_batch_listener(lambda ms: batches.append([m.get_seq() for m in ms]))
+            link._dispatch(msgs)
+            link.add_listener(lambda m: statuses.append(m.get_seq()), ("SYS_STATUS",))
+            link._dispatch(_parsed(frames(5, 2)))
+            return everything, statuses, batches, link.stats
+        finally:
+            await link.close()
+
+    everything, statuses, batches, stats = run(scenario())
+    assert everything == [0, 1, 2, 3, 0, 1] and statuses == [1]
+    assert batches == [[0, 1, 2, 3], [0, 1]]
+    assert (stats.received, stats.unknown, stats.bad_data) == (6, 1, 1)

@@ -197,6 +197,7 @@ class MavlinkLink:
         self._listeners: tuple[Callable[[Any], None], ...] = ()  # for every message
         self._typed: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> its listeners
         self._batch_listeners: tuple[Callable[[list], None], ...] = ()
+        self._route: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> all its listeners
         self._link_callbacks: list[Callable[[int, str], None]] = []
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
         self._bad_logged = -1e9
@@ -281,37 +282,38 @@ class MavlinkLink:
 
     def _dispatch(self, msgs: list) -> None:
         now = time.monotonic()
-        accepted = []
-        for msg in msgs:
-            if isinstance(msg, MAV.MAVLink_unknown):
-                self.stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
-                continue
-            mtype = msg.get_type()
-            if mtype == "BAD_DATA":
-                if not self._console_text(msg):
+        stats, peers, route = self.stats, self.peers, self._route
+        accepted = msgs
+        for i, msg in enumerate(msgs):
+            header = msg._header  # pymavlink's parsed header: msgId, srcSystem (get_srcSystem() without the call)
+            if header.msgId < 0:  # BAD_DATA (-1) or a message id the dialect does not have (UNKNOWN_n, -2)
+                if accepted is msgs:
+                    accepted = msgs[:i]
+                if isinstance(msg, MAV.MAVLink_unknown):
+                    stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
+                elif not self._console_text(msg):
                     self._bad_data(msg, now)
                 continue
-            accepted.append(msg)
+            if accepted is not msgs:
+                accepted.append(msg)
             self._framed = True
-            self.stats.received += 1
-            src = msg.get_srcSystem()
+            stats.received += 1
+            src, mtype = header.srcSystem, msg._type  # _type: what get_type() returns
             if mtype == "HEARTBEAT":
                 self._heartbeat(msg, src, now)
-            peer = self.peers.get(src)
+            peer = peers.get(src)
             if peer is not None:
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
                     peer.statustexts.append((now, msg.severity, msg.text))
-            for cb in self._listeners:  # the listeners now (one may add another)
+            cbs = route.get(mtype)
+            if cbs is None:
+                cbs = self._routes(mtype)
+            for cb in cbs:  # the listeners now (one may add another)
                 try:
                     cb(msg)
                 except Exception:  # a listener's bug must not stop the link
-                    log.exception("MAVLink listener failed")
-            for cb in self._typed.get(mtype, ()):
-                try:
-                    cb(msg)
-                except Exception:
                     log.exception("MAVLink listener failed")
             if self._waiters:
                 self._check_waiters(msg)
@@ -320,6 +322,12 @@ class MavlinkLink:
                 cb(accepted)
             except Exception:
                 log.exception("MAVLink listener failed")
+
+    def _routes(self, mtype: str) -> tuple[Callable[[Any], None], ...]:
+        """The listeners of one message type, in the order they are called (those for every message
+        first), kept in `_route` until a listener is added or removed."""
+        cbs = self._route[mtype] = self._listeners + self._typed.get(mtype, ())
+        return cbs
 
     def _bad_data(self, msg: Any, now: float) -> None:
         self.stats.bad_data += 1
@@ -376,6 +384,7 @@ class MavlinkLink:
     def add_listener(self, callback: Callable[[Any], None], types: Iterable[str] | None = None) -> None:
         """Call callback(msg) on the event loop for every message received, or (`types`) for the
         messages of those types only."""
+        self._route = {}
         if types is None:
             self._listeners += (callback,)
             return
@@ -396,6 +405,7 @@ class MavlinkLink:
                     return cbs[:i] + cbs[i + 1 :]
             return cbs
 
+        self._route = {}
         self._listeners = without(self._listeners)
         self._batch_listeners = without(self._batch_listeners)
         self._typed = {t: left for t, cbs in self._typed.items() if (left := without(cbs))}

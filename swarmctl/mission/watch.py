@@ -61,10 +61,16 @@ def deviation(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[
     below = c.guard.setpoint_altitude() - pos.rel_alt
     if start is None:
         return 0.0, below
-    lat, lon = c.grid.cell_to_latlon(*cell)
-    here = ne_m(lat, lon, pos.lat, pos.lon)
-    starts = [c.grid.cell_to_latlon(*start)] + ([a.watch_pos] if a.watch_pos is not None else [])
-    return min(off_path_m(here, ne_m(lat, lon, *s)) for s in starts), below
+    key = (start, cell, a.watch_pos)
+    path = getattr(a, "watch_path", None)
+    if path is None or path[0] != key or path[1] is not c.grid:
+        lat, lon = c.grid.cell_to_latlon(*cell)
+        starts = [c.grid.cell_to_latlon(*start)] + ([a.watch_pos] if a.watch_pos is not None else [])
+        path = a.watch_path = [key, c.grid, lat, lon, [ne_m(lat, lon, *s) for s in starts], None, 0.0]
+    if path[5] is not pos:  # a new position report: how far it is off the path
+        here = ne_m(path[2], path[3], pos.lat, pos.lon)
+        path[5], path[6] = pos, min(off_path_m(here, s) for s in path[4])
+    return path[6], below
 
 
 def problems(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[list[str], dict]:
