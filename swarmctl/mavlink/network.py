@@ -4,11 +4,11 @@ Concurrency model: one asyncio event loop drives every vehicle. Each `MavlinkLin
 thread that blocks on its socket/serial port, parses bytes with pymavlink and hands the messages to the
 loop through the loop's `_Inbox` (one `call_soon_threadsafe` wakes the loop for what every link's reader
 has handed over meanwhile, not one per datagram); a message goes only to the listeners registered for
-its type (or for every message), and batch listeners (the recorder's tap) take a link's messages a
-batch at a time. Everything else (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines
-on the loop, and one timer of the loop checks every link for link loss. Sending is a non-blocking
-datagram/serial write under a lock. A slow or silent vehicle only makes its own coroutines wait, never
-the others.
+its type (or for every message), and batch listeners (the recorder's tap) take the messages of the links
+they listen to a batch at a time (once per hand-over). Everything else (state, waits, command retries, the
+1 Hz heartbeat) runs as coroutines on the loop, and one timer of the loop checks every link for link loss.
+Sending is a non-blocking datagram/serial write under a lock. A slow or silent vehicle only makes its own
+coroutines wait, never the others.
 
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
@@ -53,9 +53,11 @@ WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
 class _Inbox:
     """The loop's side of every link on it. What the links' reader threads parse is handed to the loop in
     one callback: a reader appends (link, messages) and wakes the loop only when no drain is pending; the
-    drain runs GATHER_S later and calls each link's `_dispatch` once with all of its messages, in their
-    order (so the loop is woken a few hundred times a second at most, not once per datagram). And one
-    timer checks every open link's heartbeats every WATCHDOG_S (not a task per link)."""
+    drain runs GATHER_S later and hands each link's messages, in their order, to that link's listeners,
+    then each batch listener once with the messages of all the links it listens to (so the loop is woken
+    a few hundred times a second at most, not once per datagram, and the recorder's tap is called once
+    per drain, not once per link). And one timer checks every open link's heartbeats every WATCHDOG_S
+    (not a task per link)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
@@ -92,8 +94,16 @@ class _Inbox:
                 batches[link] += msgs
             else:
                 batches[link] = msgs
+        shared: dict[Callable[[list], None], list] = {}  # batch listener -> the messages of its links
         for link, msgs in batches.items():
-            link._dispatch(msgs)
+            accepted = link._deliver(msgs)
+            if accepted:
+                for cb in dict.fromkeys(link._batch_listeners):  # each once, even if added twice
+                    if cb in shared:
+                        shared[cb] += accepted
+                    else:
+                        shared[cb] = list(accepted)
+        _call_batch_listeners(shared)
 
     def watch(self, link: MavlinkLink) -> None:
         self._links[link] = None
@@ -114,6 +124,14 @@ class _Inbox:
             except Exception:  # one link's failure must not stop the watch of the others
                 log.exception("link watchdog failed")
         self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
+
+
+def _call_batch_listeners(batches: dict[Callable[[list], None], list]) -> None:
+    for cb, msgs in batches.items():
+        try:
+            cb(msgs)
+        except Exception:  # a listener's bug must not stop the link
+            log.exception("MAVLink listener failed")
 
 
 _inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
@@ -281,6 +299,13 @@ class MavlinkLink:
                     return
 
     def _dispatch(self, msgs: list) -> None:
+        """Messages of this link to their listeners, then to its batch listeners."""
+        accepted = self._deliver(msgs)
+        if accepted:
+            _call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted))
+
+    def _deliver(self, msgs: list) -> list:
+        """Messages of this link to its per-message listeners (and peers, waiters); the valid ones."""
         now = time.monotonic()
         stats, peers, route = self.stats, self.peers, self._route
         accepted = msgs
@@ -317,11 +342,7 @@ class MavlinkLink:
                     log.exception("MAVLink listener failed")
             if self._waiters:
                 self._check_waiters(msg)
-        for cb in self._batch_listeners if accepted else ():
-            try:
-                cb(accepted)
-            except Exception:
-                log.exception("MAVLink listener failed")
+        return accepted
 
     def _routes(self, mtype: str) -> tuple[Callable[[Any], None], ...]:
         """The listeners of one message type, in the order they are called (those for every message
@@ -393,7 +414,9 @@ class MavlinkLink:
 
     def add_batch_listener(self, callback: Callable[[list], None]) -> None:
         """Call callback(msgs) on the event loop with the valid messages received, a batch at a time (in
-        the order they came, each message once; after the per-message listeners have seen them)."""
+        the order they came, each message once; after the per-message listeners have seen them). A
+        callback added to several links of one event loop (the recorder's tap) is called once per drain
+        of the loop's inbox with all of their messages, link after link, each link's in their order."""
         self._batch_listeners += (callback,)
 
     def remove_listener(self, callback: Callable[[Any], None]) -> None:
