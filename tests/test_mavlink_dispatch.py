@@ -105,3 +105,67 @@ def test_a_failing_listener_does_not_stop_the_others():
             await link.close()
 
     assert run(scenario()) == ["HEARTBEAT", "HEARTBEAT"]
+
+
+def _parsed(frames_: list[bytes]) -> list:
+    parser = mavlink2.MAVLink(None)
+    parser.robust_parsing = True
+    return [m for f in frames_ for m in parser.parse_buffer(f) or []]
+
+
+def test_a_batch_with_bad_and_unknown_frames_reaches_listeners_and_batches_without_them():
+    """The dispatch's fast path: BAD_DATA and unknown ids are counted and left out of the batch, the
+    valid messages reach their listeners in order; a listener added or removed takes effect at once."""
+
+    async def scenario():
+        link = await MavlinkLink("udpin:127.0.0.1:0").open()
+        try:
+            unknown = bytes([0xFD, 1, 0, 0, 9, 5, 1, 0x60, 0xEA, 0]) + b"\x00\x00\x00"  # message id 60000
+            good = frames(5, 4)
+            msgs = _parsed([good[0], unknown, good[1]]) + [mavlink2.MAVLink_bad_data(b"\xfdjunk", "bad")]
+            msgs += _parsed(good[2:])
+            everything, statuses, batches = [], [], []
+            link.add_listener(lambda m: everything.append(m.get_seq()))
+            link.add_batch_listener(lambda ms: batches.append([m.get_seq() for m in ms]))
+            link._dispatch(msgs)
+            link.add_listener(lambda m: statuses.append(m.get_seq()), ("SYS_STATUS",))
+            link._dispatch(_parsed(frames(5, 2)))
+            return everything, statuses, batches, link.stats
+        finally:
+            await link.close()
+
+    everything, statuses, batches, stats = run(scenario())
+    assert everything == [0, 1, 2, 3, 0, 1] and statuses == [1]
+    assert batches == [[0, 1, 2, 3], [0, 1]]
+    assert (stats.received, stats.unknown, stats.bad_data) == (6, 1, 1)
+
+
+def test_a_batch_listener_on_several_links_gets_each_hand_over_once_link_after_link():
+    """The recorder's tap on every link: one call per hand-over of the loop's inbox with every link's
+    valid messages, each link's in their order; a listener of one link still gets only its own."""
+
+    async def scenario():
+        links = [await MavlinkLink("udpin:127.0.0.1:0").open() for _ in range(3)]
+        try:
+            shared, own = [], []
+
+            def tap(ms):
+                shared.append([(m.get_srcSystem(), m.get_seq()) for m in ms])
+
+            for link in links:
+                link.add_batch_listener(tap)
+            links[1].add_batch_listener(lambda ms: own.append([m.get_seq() for m in ms]))
+            box = links[0]._inbox
+            box.put(links[0], _parsed(frames(3, 2)))
+            box.put(links[1], _parsed(frames(4, 3)))
+            box.put(links[0], _parsed(frames(3, 3)[2:]))
+            box.put(links[2], [mavlink2.MAVLink_bad_data(b"\xfdjunk", "bad")])
+            await until(lambda: shared)
+            return shared, own
+        finally:
+            for link in links:
+                await link.close()
+
+    shared, own = run(scenario())
+    assert shared == [[(3, 0), (3, 1), (3, 2), (4, 0), (4, 1), (4, 2)]]
+    assert own == [[0, 1, 2]]

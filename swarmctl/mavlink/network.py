@@ -4,11 +4,11 @@ Concurrency model: one asyncio event loop drives every vehicle. Each `MavlinkLin
 thread that blocks on its socket/serial port, parses bytes with pymavlink and hands the messages to the
 loop through the loop's `_Inbox` (one `call_soon_threadsafe` wakes the loop for what every link's reader
 has handed over meanwhile, not one per datagram); a message goes only to the listeners registered for
-its type (or for every message), and batch listeners (the recorder's tap) take a link's messages a
-batch at a time. Everything else (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines
-on the loop, and one timer of the loop checks every link for link loss. Sending is a non-blocking
-datagram/serial write under a lock. A slow or silent vehicle only makes its own coroutines wait, never
-the others.
+its type (or for every message), and batch listeners (the recorder's tap) take the messages of the links
+they listen to a batch at a time (once per hand-over). Everything else (state, waits, command retries, the
+1 Hz heartbeat) runs as coroutines on the loop, and one timer of the loop checks every link for link loss.
+Sending is a non-blocking datagram/serial write under a lock. A slow or silent vehicle only makes its own
+coroutines wait, never the others.
 
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
@@ -53,9 +53,11 @@ WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
 class _Inbox:
     """The loop's side of every link on it. What the links' reader threads parse is handed to the loop in
     one callback: a reader appends (link, messages) and wakes the loop only when no drain is pending; the
-    drain runs GATHER_S later and calls each link's `_dispatch` once with all of its messages, in their
-    order (so the loop is woken a few hundred times a second at most, not once per datagram). And one
-    timer checks every open link's heartbeats every WATCHDOG_S (not a task per link)."""
+    drain runs GATHER_S later and hands each link's messages, in their order, to that link's listeners,
+    then each batch listener once with the messages of all the links it listens to (so the loop is woken
+    a few hundred times a second at most, not once per datagram, and the recorder's tap is called once
+    per drain, not once per link). And one timer checks every open link's heartbeats every WATCHDOG_S
+    (not a task per link)."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
@@ -92,8 +94,16 @@ class _Inbox:
                 batches[link] += msgs
             else:
                 batches[link] = msgs
+        shared: dict[Callable[[list], None], list] = {}  # batch listener -> the messages of its links
         for link, msgs in batches.items():
-            link._dispatch(msgs)
+            accepted = link._deliver(msgs)
+            if accepted:
+                for cb in dict.fromkeys(link._batch_listeners):  # each once, even if added twice
+                    if cb in shared:
+                        shared[cb] += accepted
+                    else:
+                        shared[cb] = list(accepted)
+        _call_batch_listeners(shared)
 
     def watch(self, link: MavlinkLink) -> None:
         self._links[link] = None
@@ -114,6 +124,14 @@ class _Inbox:
             except Exception:  # one link's failure must not stop the watch of the others
                 log.exception("link watchdog failed")
         self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
+
+
+def _call_batch_listeners(batches: dict[Callable[[list], None], list]) -> None:
+    for cb, msgs in batches.items():
+        try:
+            cb(msgs)
+        except Exception:  # a listener's bug must not stop the link
+            log.exception("MAVLink listener failed")
 
 
 _inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
@@ -197,6 +215,7 @@ class MavlinkLink:
         self._listeners: tuple[Callable[[Any], None], ...] = ()  # for every message
         self._typed: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> its listeners
         self._batch_listeners: tuple[Callable[[list], None], ...] = ()
+        self._route: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> all its listeners
         self._link_callbacks: list[Callable[[int, str], None]] = []
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
         self._bad_logged = -1e9
@@ -280,46 +299,56 @@ class MavlinkLink:
                     return
 
     def _dispatch(self, msgs: list) -> None:
+        """Messages of this link to their listeners, then to its batch listeners."""
+        accepted = self._deliver(msgs)
+        if accepted:
+            _call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted))
+
+    def _deliver(self, msgs: list) -> list:
+        """Messages of this link to its per-message listeners (and peers, waiters); the valid ones."""
         now = time.monotonic()
-        accepted = []
-        for msg in msgs:
-            if isinstance(msg, MAV.MAVLink_unknown):
-                self.stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
-                continue
-            mtype = msg.get_type()
-            if mtype == "BAD_DATA":
-                if not self._console_text(msg):
+        stats, peers, route = self.stats, self.peers, self._route
+        accepted = msgs
+        for i, msg in enumerate(msgs):
+            header = msg._header  # pymavlink's parsed header: msgId, srcSystem (get_srcSystem() without the call)
+            if header.msgId < 0:  # BAD_DATA (-1) or a message id the dialect does not have (UNKNOWN_n, -2)
+                if accepted is msgs:
+                    accepted = msgs[:i]
+                if isinstance(msg, MAV.MAVLink_unknown):
+                    stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
+                elif not self._console_text(msg):
                     self._bad_data(msg, now)
                 continue
-            accepted.append(msg)
+            if accepted is not msgs:
+                accepted.append(msg)
             self._framed = True
-            self.stats.received += 1
-            src = msg.get_srcSystem()
+            stats.received += 1
+            src, mtype = header.srcSystem, msg._type  # _type: what get_type() returns
             if mtype == "HEARTBEAT":
                 self._heartbeat(msg, src, now)
-            peer = self.peers.get(src)
+            peer = peers.get(src)
             if peer is not None:
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
                     peer.statustexts.append((now, msg.severity, msg.text))
-            for cb in self._listeners:  # the listeners now (one may add another)
+            cbs = route.get(mtype)
+            if cbs is None:
+                cbs = self._routes(mtype)
+            for cb in cbs:  # the listeners now (one may add another)
                 try:
                     cb(msg)
                 except Exception:  # a listener's bug must not stop the link
                     log.exception("MAVLink listener failed")
-            for cb in self._typed.get(mtype, ()):
-                try:
-                    cb(msg)
-                except Exception:
-                    log.exception("MAVLink listener failed")
             if self._waiters:
                 self._check_waiters(msg)
-        for cb in self._batch_listeners if accepted else ():
-            try:
-                cb(accepted)
-            except Exception:
-                log.exception("MAVLink listener failed")
+        return accepted
+
+    def _routes(self, mtype: str) -> tuple[Callable[[Any], None], ...]:
+        """The listeners of one message type, in the order they are called (those for every message
+        first), kept in `_route` until a listener is added or removed."""
+        cbs = self._route[mtype] = self._listeners + self._typed.get(mtype, ())
+        return cbs
 
     def _bad_data(self, msg: Any, now: float) -> None:
         self.stats.bad_data += 1
@@ -376,6 +405,7 @@ class MavlinkLink:
     def add_listener(self, callback: Callable[[Any], None], types: Iterable[str] | None = None) -> None:
         """Call callback(msg) on the event loop for every message received, or (`types`) for the
         messages of those types only."""
+        self._route = {}
         if types is None:
             self._listeners += (callback,)
             return
@@ -384,7 +414,9 @@ class MavlinkLink:
 
     def add_batch_listener(self, callback: Callable[[list], None]) -> None:
         """Call callback(msgs) on the event loop with the valid messages received, a batch at a time (in
-        the order they came, each message once; after the per-message listeners have seen them)."""
+        the order they came, each message once; after the per-message listeners have seen them). A
+        callback added to several links of one event loop (the recorder's tap) is called once per drain
+        of the loop's inbox with all of their messages, link after link, each link's in their order."""
         self._batch_listeners += (callback,)
 
     def remove_listener(self, callback: Callable[[Any], None]) -> None:
@@ -396,6 +428,7 @@ class MavlinkLink:
                     return cbs[:i] + cbs[i + 1 :]
             return cbs
 
+        self._route = {}
         self._listeners = without(self._listeners)
         self._batch_listeners = without(self._batch_listeners)
         self._typed = {t: left for t, cbs in self._typed.items() if (left := without(cbs))}

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from swarmctl.mavlink.autopilots.base import Autopilot
-from swarmctl.mavlink.codec import distance_m
+from swarmctl.mavlink.codec import EARTH_RADIUS_M, distance_m
 from swarmctl.mavlink.errors import MavlinkError, WaitTimeout
 from swarmctl.mavlink.limits import FlightLimits
 
@@ -62,10 +62,12 @@ class Odometer:
     def add_fix(self, lat: float, lon: float, rel_alt: float) -> None:
         """`add` from the figures of a position report (degrees, metres above home), without a Position."""
         last = self._last
-        if last is not None and max(last[2], rel_alt) >= AIRBORNE_M:
-            horizontal = distance_m(last[0], last[1], lat, lon)
-            self.metres += math.hypot(horizontal, rel_alt - last[2])
         self._last = (lat, lon, rel_alt)
+        if last is not None and (last[2] >= AIRBORNE_M or rel_alt >= AIRBORNE_M):
+            lat0 = last[0]  # codec.distance_m, inlined (the same arithmetic): it runs for every report
+            north = math.radians(lat - lat0) * EARTH_RADIUS_M
+            east = math.radians(lon - last[1]) * EARTH_RADIUS_M * math.cos(math.radians(lat0))
+            self.metres += math.hypot(math.hypot(north, east), rel_alt - last[2])
 
 
 def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, float]]:
@@ -92,6 +94,7 @@ class Vehicle(abc.ABC):
     target: Target | None = None
     odometer: Odometer  # fed by the driver with every position report
     _limits: FlightLimits | None = None
+    _reached_memo: tuple[Position, Target, float, bool] | None = None  # see `reached`
 
     @property
     def autopilot(self) -> str | None:
@@ -235,8 +238,13 @@ class Vehicle(abc.ABC):
         pos, tgt = self.position, self.target
         if pos is None or tgt is None:
             return False
+        memo = self._reached_memo  # the answer for the same position report and target (asked every poll)
+        if memo is not None and memo[0] is pos and memo[1] is tgt and memo[2] == tolerance:
+            return memo[3]
         horiz = distance_m(pos.lat, pos.lon, tgt.lat, tgt.lon)
-        return (horiz**2 + (pos.rel_alt - tgt.rel_alt) ** 2) ** 0.5 <= tolerance
+        answer = (horiz**2 + (pos.rel_alt - tgt.rel_alt) ** 2) ** 0.5 <= tolerance
+        self._reached_memo = (pos, tgt, tolerance, answer)
+        return answer
 
     async def wait_reached(self, tolerance: float = 1.0, timeout: float = 120.0) -> None:
         await self._poll(lambda: self.reached(tolerance), timeout, "the position target")

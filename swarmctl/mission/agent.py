@@ -106,6 +106,9 @@ class Agent:
         self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
         self.watch_from: tuple[int, int] | None = None  # the cell held at the last off-course check
         self.watch_pos: tuple[float, float] | None = None  # lat, lon at the last check it passed
+        # the watch's last path, kept while a flight is checked against it: its ends in metres from the
+        # cell's centre, the position last measured and its metres off it (swarmctl.mission.watch.deviation)
+        self.watch_path: list | None = None
         self.off_course = 0  # rounds in a row the vehicle was off course
         self.climbed = False  # at the mission altitude since it was first seen commanded
         self.alarm: str | None = None  # what the live table shows (off course)

@@ -61,10 +61,22 @@ def deviation(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[
     below = c.guard.setpoint_altitude() - pos.rel_alt
     if start is None:
         return 0.0, below
-    lat, lon = c.grid.cell_to_latlon(*cell)
-    here = ne_m(lat, lon, pos.lat, pos.lon)
-    starts = [c.grid.cell_to_latlon(*start)] + ([a.watch_pos] if a.watch_pos is not None else [])
-    return min(off_path_m(here, ne_m(lat, lon, *s)) for s in starts), below
+    # the path's ends in metres from the centre of `cell`, kept per agent (a flight is checked every
+    # COURSE_S against the same path) and converted again only when an end moves
+    path = getattr(a, "watch_path", None)
+    if path is None or path[0] != start or path[1] != cell or path[2] is not c.grid:
+        lat, lon = c.grid.cell_to_latlon(*cell)
+        start_m = ne_m(lat, lon, *c.grid.cell_to_latlon(*start))
+        # then: watch_pos, its metres, the position last measured, its metres off the path
+        path = a.watch_path = [start, cell, c.grid, lat, lon, start_m, None, None, None, 0.0]
+    watch_pos = a.watch_pos
+    if path[6] != watch_pos or (watch_pos is not None and path[7] is None):
+        path[6], path[7], path[8] = watch_pos, None if watch_pos is None else ne_m(path[3], path[4], *watch_pos), None
+    if path[8] is not pos:  # a new position report: how far it is off the path
+        here = ne_m(path[3], path[4], pos.lat, pos.lon)
+        off = off_path_m(here, path[5])
+        path[8], path[9] = pos, off if path[7] is None else min(off, off_path_m(here, path[7]))
+    return path[9], below
 
 
 def problems(c: Controller, a: Agent, start: Cell | None, cell: Cell) -> tuple[list[str], dict]:

@@ -76,7 +76,6 @@ TELEMETRY = (
 )
 
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
-_FOLLOWED = ("GLOBAL_POSITION_INT", "HEARTBEAT")  # what _on_message follows
 
 
 def fence_items(mav: Any, target_system: int, target_component: int, vertices: list[tuple[float, float]]) -> list[Any]:
@@ -181,20 +180,21 @@ class ArduPilotVehicle(Vehicle):
         for a message that does not come or stops."""
         await self.link.wait_heartbeat(self.sysid, timeout)
         if not self._listening:
-            self.link.add_listener(self._on_message, _FOLLOWED)
+            self.link.add_listener(self._on_position, ("GLOBAL_POSITION_INT",))
+            self.link.add_listener(self._on_heartbeat, ("HEARTBEAT",))
             self._listening = True
         await self.request_telemetry()
         if self._telemetry_timer is None:
             self._telemetry_timer = asyncio.get_running_loop().call_later(KEEP_TELEMETRY_S, self._keep_telemetry)
 
-    def _on_message(self, msg: Any) -> None:
-        """Follows this vehicle's reports: positions into the odometer, the mode's changes."""
-        if msg.get_srcSystem() != self.sysid:
-            return
-        if msg.get_type() == "GLOBAL_POSITION_INT":
-            if msg.lat != 0 or msg.lon != 0:  # a position (see `position`), its figures as `position` gives them
-                self.odometer.add_fix(from_deg_e7(msg.lat), from_deg_e7(msg.lon), msg.relative_alt / 1000.0)
-        elif msg.custom_mode != self._mode_since[0]:  # a HEARTBEAT
+    def _on_position(self, msg: Any) -> None:
+        """This vehicle's position reports into the odometer (with the figures `position` gives)."""
+        if msg._header.srcSystem == self.sysid and (msg.lat != 0 or msg.lon != 0):  # 0, 0: no position yet
+            self.odometer.add_fix(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
+
+    def _on_heartbeat(self, msg: Any) -> None:
+        """This vehicle's mode changes, with when they were first reported."""
+        if msg._header.srcSystem == self.sysid and msg.custom_mode != self._mode_since[0]:
             self._mode_since = (msg.custom_mode, time.monotonic())
 
     async def request_telemetry(self, streams: tuple[Stream, ...] | list[Stream] = TELEMETRY) -> None:
@@ -576,7 +576,8 @@ class ArduPilotVehicle(Vehicle):
                 pass
             self._asking = None
         if self._listening:
-            self.link.remove_listener(self._on_message)
+            self.link.remove_listener(self._on_position)
+            self.link.remove_listener(self._on_heartbeat)
             self._listening = False
         if self.owns_link:
             await self.link.close()
