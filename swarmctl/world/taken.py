@@ -29,12 +29,15 @@ def remove_taken_targets(
     phi_hat: known phi (1 on unexplored cells); explored: bool, same shape; taken: bool, the target
     cells (explored, phi 1) someone else holds. Leading axes are independent maps. A cell belongs to
     a taken target's bump when its phi is at most that bump's value + `tolerance` (raise it for
-    quantised phi)."""
+    quantised phi). When every map is the same the result is one map, broadcast (read-only)."""
     if not taken.any():
         return phi_hat
     lead = phi_hat.shape[:-2]
     if len(lead) and int(np.prod(lead)) > 1:  # many maps, often equal (agents sharing knowledge): each once
         flat = [a.reshape(-1, *a.shape[-2:]) for a in (phi_hat, explored, taken)]
+        if all(np.logical_and.reduce(a == a[:1], axis=None) for a in flat):  # all the same: one map, shared
+            done = _remove(*(a[:1] for a in flat), sigma2, cutoff, tolerance)
+            return np.broadcast_to(done, flat[0].shape).reshape(phi_hat.shape)
         first: dict[bytes, int] = {}
         which = np.array(
             [first.setdefault(p.tobytes() + e.tobytes() + t.tobytes(), len(first)) for p, e, t in zip(*flat)]
