@@ -564,10 +564,11 @@ def beliefs_from_knowledge(
     hover[np.arange(a), me] = np.asarray(hovering, dtype=bool) if hovering is not None else False
     hover = hover[None]
     settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
-    rows = [_stacked(knowledges, name) for name in ("explored", "phi_q", "target_step", "obstacle")]
-    same = a > 1 and all(_rows_equal(r) for r in rows)
-    if same:  # every agent knows the same map (ideal sharing): built once, read by all through broadcast views
-        rows = [r[:1] for r in rows]
+    names = ("explored", "phi_q", "target_step", "obstacle")
+    rows = _one_shared_map(knowledges, names)
+    same = rows is not None  # every agent knows the same map (ideal sharing): built once, read through views
+    if rows is None:
+        rows = [_stacked(knowledges, name) for name in names]
     explored, phi_q, target_step, obstacle = rows
     targets = (explored & (phi_q == PHI_LEVELS)) | (target_step != NEVER)
     value = np.stack(_known_value(targets, settings))
@@ -603,9 +604,25 @@ def _stacked(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
     return np.stack(rows)
 
 
-def _rows_equal(arr: np.ndarray) -> bool:
-    """Whether every row of `arr` (A, ...) equals the first."""
-    return bool(np.logical_and.reduce(arr == arr[:1], axis=None))
+def _one_shared_map(knowledges: list[Knowledge], names: tuple[str, ...]) -> list[np.ndarray] | None:
+    """When two or more knowledges are rows of one stack holding the same arrays `names`: the first
+    row of each, (1, W, H); None otherwise. Compared in place, without gathering the rows."""
+    stack = knowledges[0]._stack
+    if len(knowledges) < 2 or any(k._stack is not stack for k in knowledges):
+        return None
+    rows = [k._row for k in knowledges]
+    out = []
+    for name in names:
+        arr = getattr(stack, name)
+        first = arr[rows[0] : rows[0] + 1]
+        if 2 * len(rows) >= len(arr):  # most of the stack: compare it all, then pick the rows
+            equal = np.logical_and.reduce((arr == first).reshape(len(arr), -1), axis=1)[rows]
+        else:
+            equal = np.logical_and.reduce((arr[rows] == first).reshape(len(rows), -1), axis=1)
+        if not np.logical_and.reduce(equal):
+            return None
+        out.append(first)
+    return out
 
 
 def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.ndarray]:
