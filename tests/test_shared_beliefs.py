@@ -1,5 +1,6 @@
 """Agents that know the same maps (ideal sharing) get beliefs built once and broadcast: the same beliefs,
-value channels, observations and allowed moves as each agent's own, built alone."""
+value channels, observations and allowed moves as each agent's own, built alone. The vehicle channel
+counted cell by cell gives the per-vehicle count's observations."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ from hypothesis import strategies as st
 from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge, beliefs_from_knowledge, position_key
 from swarmctl.knowledge.stack import KnowledgeStack
 from swarmctl.policy.base import allowed_moves
+from swarmctl.world import observe as observing
 from swarmctl.world.beliefs import ObservationSettings
 from swarmctl.world.observe import observe
 from swarmctl.world.taken import _remove, remove_taken_targets
+from tests.test_decide_few import random_beliefs
 
 
 def _shared_swarm(seed: int, n: int, w: int, h: int) -> list[Knowledge]:
@@ -71,3 +74,18 @@ def test_removing_taken_targets_from_equal_maps_is_removing_them_from_each(seed,
     out = remove_taken_targets(*stack, 1.0, 0.01)
     each = _remove(*(np.ascontiguousarray(a[0]) for a in stack), 1.0, 0.01, 1e-6)
     assert out.shape == (1, maps, w, h) and np.array_equal(out[0], each)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 3), st.integers(3, 9), st.integers(8, 30), st.sampled_from([8, 20]))
+def test_the_vehicle_channel_counted_by_cell_is_the_per_vehicle_count(seed, batch, deciders, side, window):
+    beliefs = random_beliefs(seed, batch, deciders, deciders + 3, side, side + 1, window)
+    arrays = beliefs.value_channel(True), beliefs.pos, beliefs.positions, beliefs.others, window, beliefs.settings.rho
+    kept, built = observing.DENSE, {}
+    for dense in (0, 10**9):  # never, always
+        observing.DENSE = dense
+        try:
+            built[dense] = observing._build_batched(*arrays)
+        finally:
+            observing.DENSE = kept
+    assert built[0].dtype == built[10**9].dtype and np.array_equal(built[0], built[10**9])
