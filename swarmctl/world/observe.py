@@ -51,8 +51,9 @@ def build_observations(
     channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32.
 
     For up to SMALL deciders x vehicles the vehicle channels are set from Python ints (_build_few);
-    beyond, the vehicle counts are scattered with flat indices, and so is the window for up to FEW of
-    them: a fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
+    beyond, the vehicle counts are scattered with flat indices (counted cell by cell where the windows
+    hold many vehicles: DENSE), and so is the window for up to FEW of them: a fixed handful of numpy
+    calls whatever the batch (at batch 1 the number of calls is the cost)."""
     if positions.size <= 2 * SMALL:
         n = pos.shape[0] * pos.shape[1]
         own, rows = pos.reshape(n, 2).tolist(), positions.reshape(n, -1, 2).tolist()  # (x, y) lists
