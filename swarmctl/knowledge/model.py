@@ -535,7 +535,8 @@ def beliefs_from_knowledge(
     settings: the observation settings (default the paper's, with the quantised phi's tolerance);
     hovering: whether each agent itself hovers on a target (default: none do: they are searching);
     episode: the id that keys the policy's random draws with the step (a mission is episode 0).
-    Each agent must know its own cell."""
+    Each agent must know its own cell. When every agent knows the same maps (ideal sharing), the
+    grid-sized fields are built once and are read-only broadcast views over the agents."""
     if not knowledges:
         raise ValueError("beliefs need at least one agent's knowledge")
     w, h = knowledges[0].width, knowledges[0].height
@@ -563,13 +564,19 @@ def beliefs_from_knowledge(
     hover[np.arange(a), me] = np.asarray(hovering, dtype=bool) if hovering is not None else False
     hover = hover[None]
     settings = settings or ObservationSettings(phi_tolerance=PHI_TOLERANCE)
-    explored = _stacked(knowledges, "explored")
-    phi_q = _stacked(knowledges, "phi_q")
-    targets = (explored & (phi_q == PHI_LEVELS)) | (_stacked(knowledges, "target_step") != NEVER)
+    names = ("explored", "phi_q", "target_step", "obstacle")
+    rows = _one_shared_map(knowledges, names)
+    same = rows is not None  # every agent knows the same map (ideal sharing): built once, read through views
+    if rows is None:
+        rows = [_stacked(knowledges, name) for name in names]
+    explored, phi_q, target_step, obstacle = rows
+    targets = (explored & (phi_q == PHI_LEVELS)) | (target_step != NEVER)
     value = np.stack(_known_value(targets, settings))
-    phi_hat = np.where(explored, np.maximum(dequantise_phi(phi_q), value), np.float32(1.0))[None]
-    obstacles = (explored & _stacked(knowledges, "obstacle"))[None]
-    explored, targets = explored[None], targets[None]
+    phi_hat = np.where(explored, np.maximum(dequantise_phi(phi_q), value), np.float32(1.0))
+    maps = [explored, phi_hat, explored & obstacle, targets]
+    if same:
+        maps = [np.broadcast_to(m, (a, w, h)) for m in maps]
+    explored, phi_hat, obstacles, targets = (m[None] for m in maps)
     me = me[None]
     return Beliefs(
         explored,
@@ -595,6 +602,27 @@ def _stacked(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
         width = max(r.size for r in rows)
         rows = [np.concatenate([r, np.full(width - r.size, fill, dtype=r.dtype)]) for r in rows]
     return np.stack(rows)
+
+
+def _one_shared_map(knowledges: list[Knowledge], names: tuple[str, ...]) -> list[np.ndarray] | None:
+    """When two or more knowledges are rows of one stack holding the same arrays `names`: the first
+    row of each, (1, W, H); None otherwise. Compared in place, without gathering the rows."""
+    stack = knowledges[0]._stack
+    if len(knowledges) < 2 or any(k._stack is not stack for k in knowledges):
+        return None
+    rows = [k._row for k in knowledges]
+    out = []
+    for name in names:
+        arr = getattr(stack, name)
+        first = arr[rows[0] : rows[0] + 1]
+        if 2 * len(rows) >= len(arr):  # most of the stack: compare it all, then pick the rows
+            equal = np.logical_and.reduce((arr == first).reshape(len(arr), -1), axis=1)[rows]
+        else:
+            equal = np.logical_and.reduce((arr[rows] == first).reshape(len(rows), -1), axis=1)
+        if not np.logical_and.reduce(equal):
+            return None
+        out.append(first)
+    return out
 
 
 def _known_value(targets: np.ndarray, settings: ObservationSettings) -> list[np.ndarray]:

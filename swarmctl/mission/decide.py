@@ -103,14 +103,10 @@ class FieldPolicy:
         if not isinstance(self.policy, DDQLPolicy):
             return [Choice(int(m)) for m in self.policy.act(beliefs)[0]]
         d = self.policy.decide(beliefs)
+        # Python floats from tolist() are float(v) of each float32, rounded as before
         return [
-            Choice(
-                int(m),
-                obs_digest(o),
-                [round(float(v), 4) for v in qv],
-                "frontier" if by else None,
-            )
-            for m, o, qv, by in zip(d.moves[0], d.obs[0], d.q[0], d.by_frontier[0])
+            Choice(m, obs_digest(o), [round(v, 4) for v in qv], "frontier" if by else None)
+            for m, o, qv, by in zip(d.moves[0].tolist(), d.obs[0], d.q[0].tolist(), d.by_frontier[0].tolist())
         ]
 
     def choose(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> list[Choice]:

@@ -54,6 +54,11 @@ class ObservationSettings:
         return cls(**kw, phi_tolerance=phi_tolerance)
 
 
+def _one_map(arr: np.ndarray) -> bool:
+    """Whether a (B, U, W, H) map is one map per batch, broadcast over its U > 1 deciders."""
+    return arr.shape[1] > 1 and arr.strides[1] == 0
+
+
 class Beliefs:
     """B x U deciders' knowledge (see the module docstring for the axes).
 
@@ -291,7 +296,10 @@ class Beliefs:
         else:
             base = self.phi_hat
         if self.any_obstacle:
-            return base - np.float32(self.settings.rho) * self.obstacles
+            obstacles, rho = self.obstacles, np.float32(self.settings.rho)
+            if _one_map(base) and _one_map(obstacles):  # every decider reads the same maps: computed once
+                return np.broadcast_to(base[:, :1] - rho * obstacles[:, :1], base.shape)
+            return base - rho * obstacles
         return base
 
     def last_searching(self) -> np.ndarray:

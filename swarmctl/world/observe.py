@@ -20,6 +20,9 @@ from swarmctl.world.beliefs import PAPER_VARIANT, SMALL, Beliefs
 from swarmctl.world.moves import block_starts
 
 FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
+DENSE = 64  # a vehicle channel counted cell by cell (bincount) once its vehicles x DENSE reach its cells:
+#             np.add.at costs ~55 ns a vehicle, bincount ~0.5 ns a cell (45 windows of 20 x 20 with
+#             1,026 vehicles in them: 57 -> 9 us; 512 windows with 512: 30 us by add.at, 83 by bincount)
 
 
 def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
@@ -48,8 +51,9 @@ def build_observations(
     channel (the other vehicles whose position is known). Returns (B, U, 3, F, F) float32.
 
     For up to SMALL deciders x vehicles the vehicle channels are set from Python ints (_build_few);
-    beyond, the vehicle counts are scattered with flat indices, and so is the window for up to FEW of
-    them: a fixed handful of numpy calls whatever the batch (at batch 1 the number of calls is the cost)."""
+    beyond, the vehicle counts are scattered with flat indices (counted cell by cell where the windows
+    hold many vehicles: DENSE), and so is the window for up to FEW of them: a fixed handful of numpy
+    calls whatever the batch (at batch 1 the number of calls is the cost)."""
     if positions.size <= 2 * SMALL:
         n = pos.shape[0] * pos.shape[1]
         own, rows = pos.reshape(n, 2).tolist(), positions.reshape(n, -1, 2).tolist()  # (x, y) lists
@@ -134,7 +138,11 @@ def _build_batched(
         rel = positions.reshape(n, -1, 2) - corner[:, None, :]
         visible = others.reshape(n, -1) & np.logical_and.reduce((rel >= 0) & (rel < f), axis=-1)
     obs[block_starts(n, 1), 0, own[:, 0], own[:, 1]] = 1.0  # channel 0: the own cell
-    if np.logical_or.reduce(visible, axis=None):  # channel 1: one count per vehicle on its cell
+    seen = np.count_nonzero(visible)
+    if seen * DENSE >= n * f * f:  # channel 1 from a count of every cell (small ints: exact as float32)
+        cells = block_starts(n, f * f)[:, None] + rel[..., 0] * f + rel[..., 1]
+        obs[:, 1] = np.bincount(cells[visible], minlength=n * f * f).reshape(n, f, f)
+    elif seen:  # a few vehicles in many windows: one count per vehicle on its cell
         cells = block_starts(n, 3 * f * f)[:, None] + (f * f + rel[..., 0] * f + rel[..., 1])
         np.add.at(obs.reshape(-1), cells[visible], 1.0)
     return obs.reshape(b, u, 3, f, f)

@@ -29,12 +29,15 @@ def remove_taken_targets(
     phi_hat: known phi (1 on unexplored cells); explored: bool, same shape; taken: bool, the target
     cells (explored, phi 1) someone else holds. Leading axes are independent maps. A cell belongs to
     a taken target's bump when its phi is at most that bump's value + `tolerance` (raise it for
-    quantised phi)."""
+    quantised phi). When every map is the same the result is one map, broadcast (read-only)."""
     if not taken.any():
         return phi_hat
     lead = phi_hat.shape[:-2]
     if len(lead) and int(np.prod(lead)) > 1:  # many maps, often equal (agents sharing knowledge): each once
         flat = [a.reshape(-1, *a.shape[-2:]) for a in (phi_hat, explored, taken)]
+        if all(_all_equal(a) for a in flat):  # all the same: one map, shared
+            done = _remove(*(a[:1] for a in flat), sigma2, cutoff, tolerance)
+            return np.broadcast_to(done, flat[0].shape).reshape(phi_hat.shape)
         first: dict[bytes, int] = {}
         which = np.array(
             [first.setdefault(p.tobytes() + e.tobytes() + t.tobytes(), len(first)) for p, e, t in zip(*flat)]
@@ -46,9 +49,17 @@ def remove_taken_targets(
     return _remove(phi_hat, explored, taken, sigma2, cutoff, tolerance)
 
 
+def _all_equal(maps: np.ndarray) -> bool:
+    """Whether the maps (M, W, H) are all the same (at once when they are one map broadcast)."""
+    return maps.strides[0] == 0 or bool(np.logical_and.reduce(maps == maps[:1], axis=None))
+
+
 def _remove(
     phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float, cutoff: float, tolerance: float
 ) -> np.ndarray:
+    if phi_hat.ndim > 2 and phi_hat.size == phi_hat.shape[-2] * phi_hat.shape[-1]:  # one map: transformed in 2-D
+        two = [a.reshape(a.shape[-2:]) for a in (phi_hat, explored, taken)]
+        return _remove(*two, sigma2, cutoff, tolerance).reshape(phi_hat.shape)
     sampling = [_FAR] * (phi_hat.ndim - 2) + [1.0, 1.0]
     remaining = explored & (phi_hat >= 1.0) & ~taken
     gone = value_bump(distance_transform_edt(~taken, sampling=sampling), sigma2, cutoff)
