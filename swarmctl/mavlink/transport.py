@@ -47,8 +47,11 @@ class UdpTransport(Transport):
 
     def __init__(self, ep: Endpoint):
         self.listen = ep.kind == "udpin"
+        # No SO_REUSEADDR: on a UDP socket it lets the kernel hand a port already bound by another
+        # such socket to a bind to port 0 (a udpout's own port landed on a udpin's, which then
+        # answered itself), and lets a second program bind a listening port and split its traffic.
+        # UDP has no TIME_WAIT, so a port closed is free again at once without it.
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         self.peers: list[tuple[str, int]] = []
         self._sources: OrderedDict[tuple[str, int], None] = OrderedDict()  # udpin: answered, oldest first
         self.last_source: tuple[str, int] | None = None
