@@ -240,15 +240,26 @@ class Flight:
             if not fly_may_exit and not self.fly.alive():
                 raise SitlError(
                     f"{self.scenario.name}: fly exited with {self.fly.process.returncode} while waiting for {what}; "
-                    f"its output ends:\n{self.fly.console_tail(3000)}"
+                    f"{self.vehicles_now()}; its output ends:\n{self.fly.console_tail(3000)}"
                 )
             if time.monotonic() > deadline:
                 raise SitlError(
                     f"{self.scenario.name}: timed out after {timeout:g} s waiting for {what}; "
-                    f"fly's output ends:\n{self.fly.console_tail(3000)}"
+                    f"{self.vehicles_now()}; fly's output ends:\n{self.fly.console_tail(3000)}"
                 )
             time.sleep(POLL_S)
         return value
+
+    def vehicles_now(self) -> str:
+        """The vehicles as summary.json has them now (state, steps, error, when it was written), for errors."""
+        summary = self.summary()
+        if summary is None:
+            return "no summary.json"
+        states = ", ".join(
+            f"{v['name']} {v['final_state']} {v['steps']} steps" + (f" ({v['error']})" if v.get("error") else "")
+            for v in summary["vehicles"]
+        )
+        return f"summary.json (running {summary.get('running')}): {states}"
 
     def searching(self, names: Sequence[str], steps: int = 1) -> bool:
         """Every one of these vehicles searches and has made at least `steps` decisions."""

@@ -22,6 +22,7 @@ from swarmctl.mavlink.codec import distance_m, offset_m, parse_connection
 from swarmctl.mavlink.connect import with_port_hints
 from swarmctl.mavlink.errors import CommandRejected, NotReady, WaitTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
+from swarmctl.mavlink.vehicle import Position
 from swarmctl.sim.swarm import free_udp_port
 from tests.mavlink_support import HOME, mock_vehicles, our_threads, run
 
@@ -345,3 +346,22 @@ def test_the_mock_px4_returns_at_rtl_return_alt_and_holds_once_disarmed_as_px4_s
     top, modes, off_home, texts = run(scenario(), timeout=60)
     assert top == pytest.approx(30.0, abs=0.1) and off_home < 0.1
     assert modes == ["RTL", "HOLD"] and "Disarmed by landing" in texts
+
+
+@pytest.mark.parametrize(
+    ("rel_alt", "landed_state", "armed", "landed"),
+    [
+        (1.25, "ON_GROUND", False, True),  # PX4 SITL's estimate 1.25 m up, landed and disarmed on the ground
+        (1.25, "IN_AIR", False, False),
+        (1.25, "UNKNOWN", False, False),
+        (0.4, "UNKNOWN", False, True),  # no land detector heard: under 1 m, disarmed
+        (0.4, "ON_GROUND", True, False),  # still armed
+    ],
+)
+def test_a_disarmed_px4_is_landed_under_1_m_or_where_its_land_detector_says_ground(
+    rel_alt, landed_state, armed, landed
+):
+    v = PX4Vehicle("udpin:127.0.0.1:0", sysid=1, name="uav1")
+    v._armed, v._landed_state = armed, landed_state
+    v._position = Position(HOME[0], HOME[1], rel_alt, HOME[2] + rel_alt)
+    assert v._landed() is landed and v.on_ground is (landed_state == "ON_GROUND")

@@ -62,8 +62,11 @@ async def fly(sitl) -> dict:
         knowledge = codec.frames(Delta(0, 1, (0, 0), False, cells=[(0, 0)], phi=[255], obstacle=[0]))
         seen["written"] = [v.write_frame(f) for f in knowledge]
         await v._poll(lambda: v.frames_sent == len(knowledge), 5, "the knowledge frames")
+        seen["on_ground_flying"] = v.on_ground
         await v.land()
         await v.wait_landed(60)
+        await v._poll(lambda: v.on_ground, 10, "the land detector")
+        seen["on_ground_landed"] = v.on_ground
         seen["landed_s"] = time.monotonic() - t0
     finally:
         await v.close()
@@ -78,6 +81,7 @@ def test_px4_sitl_is_ready_repositions_in_both_frames_and_answers_a_refused_fram
     assert seen["frames"] == [MAV_FRAME_GLOBAL_INT, MAV_FRAME_GLOBAL] and max(seen["errors_m"]) < 1.0
     assert seen["relative_result"] == 9  # UNSUPPORTED_MAV_FRAME, and the process lives on
     assert all(seen["written"])
+    assert (seen["on_ground_flying"], seen["on_ground_landed"]) == (False, True)  # EXTENDED_SYS_STATE, API link
     assert seen["limits"]["MPC_XY_CRUISE"] == pytest.approx(5.0) and seen["limits"]["RTL_RETURN_ALT"] == 30.0
 
 

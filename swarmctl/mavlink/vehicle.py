@@ -232,6 +232,12 @@ class Vehicle(abc.ABC):
         """Battery percentage, or None when unknown."""
         return None
 
+    @property
+    def on_ground(self) -> bool:
+        """True when the autopilot's own land detector says the vehicle is on the ground (False when it
+        says otherwise or nothing)."""
+        return False
+
     # --- shared helpers -------------------------------------------------------------------------------
     def reached(self, tolerance: float = 1.0) -> bool:
         """True when the vehicle is within tolerance metres (3-D) of the last target."""
@@ -254,8 +260,10 @@ class Vehicle(abc.ABC):
         await self._poll(self._landed, timeout, "landing")
 
     def _landed(self) -> bool:
+        # disarmed and under 1 m, or disarmed where the land detector says ground: PX4 SITL's estimate
+        # has been seen 1.25 m above the ground it had landed and disarmed on
         pos = self.position
-        return not self.armed and (pos is None or pos.rel_alt < 1.0)
+        return not self.armed and (pos is None or pos.rel_alt < 1.0 or self.on_ground)
 
     async def _poll(self, cond, timeout: float, what: str, period: float = 0.05) -> None:
         deadline = time.monotonic() + timeout

@@ -128,6 +128,7 @@ class PX4Vehicle(Vehicle):
         self._position: Position | None = None
         self._home: Home | None = None
         self._armed = False
+        self._landed_state = "UNKNOWN"  # MAVSDK's LandedState name (EXTENDED_SYS_STATE's landed_state)
         self._mode = "UNKNOWN"
         self._connected = False
         self._battery: int | None = None
@@ -191,6 +192,7 @@ class PX4Vehicle(Vehicle):
             "subscribe_position": self._on_position,
             "subscribe_home": self._on_home,
             "subscribe_armed": self._on_armed,
+            "subscribe_landed_state": self._on_landed_state,
             "subscribe_flight_mode": self._on_mode,
             "subscribe_battery": self._on_battery,
             "subscribe_health": self._on_health,
@@ -256,6 +258,9 @@ class PX4Vehicle(Vehicle):
 
     def _on_armed(self, armed: bool) -> None:
         self._armed = bool(armed)
+
+    def _on_landed_state(self, state: Any) -> None:
+        self._landed_state = getattr(state, "name", str(state))
 
     def _on_mode(self, mode: Any) -> None:
         self._mode = _MODE_NAMES.get(mode.name, mode.name)
@@ -526,3 +531,7 @@ class PX4Vehicle(Vehicle):
     @property
     def battery_remaining(self) -> int | None:
         return self._battery
+
+    @property
+    def on_ground(self) -> bool:
+        return self._landed_state == "ON_GROUND"
