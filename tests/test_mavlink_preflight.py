@@ -116,6 +116,94 @@ def test_preflight_switches_to_guided_first_and_waits_for_the_ekf_there():
     assert all(later - earlier > 1.2 for earlier, later in zip(prearm_received, prearm_received[1:]))
 
 
+def set_modes(mock: MockAutopilot) -> int:
+    return sum(1 for _t, _src, command in mock.received if command == MAV.MAV_CMD_DO_SET_MODE)
+
+
+def test_the_mock_arducopter_undoes_a_mode_accepted_during_its_boot_as_sitl_does():
+    """ArduCopter SITL accepts GUIDED while its heartbeat says BOOT and reports it, then ends its
+    initialisation in STABILIZE ("ArduPilot Ready", STANDBY): the mode asked for is gone."""
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            m = MockAutopilot(home=HOME, sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}", speedup=20.0)
+            m.slow_boot(1e9)
+            m.start()
+            try:
+                peer = await link.wait_heartbeat(1, 5)
+                await link.command(1, MAV.MAV_CMD_DO_SET_MODE, (1.0, 4.0))  # GUIDED: accepted
+                await link.wait_until(lambda: peer.heartbeat.custom_mode == 4, 5, "GUIDED", "vehicle 1")
+                in_boot = (peer.heartbeat.custom_mode, peer.heartbeat.system_status)
+                m.slow_boot(m.sim_time)  # the initialisation ends now
+                await link.wait_until(
+                    lambda: peer.heartbeat.system_status == MAV.MAV_STATE_STANDBY, 5, "STANDBY", "vehicle 1"
+                )
+                return in_boot, peer.heartbeat.custom_mode
+            finally:
+                m.stop()
+
+    in_boot, after = run(scenario())
+    assert in_boot == (4, MAV.MAV_STATE_BOOT)
+    assert after == 0  # STABILIZE
+
+
+def test_preflight_asks_for_guided_only_once_the_autopilot_has_booted():
+    """In CI a loaded ArduCopter SITL accepted GUIDED during its boot and ended it in STABILIZE, and the
+    controller gave up on the mode 3 s later. wait_ready sends no DO_SET_MODE while the heartbeat says
+    BOOT (it reports that it waits for the end of the boot), then one."""
+    said: list[str] = []
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            m = MockAutopilot(
+                home=HOME, sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}", speedup=20.0, ready_after=2.0
+            )
+            m.slow_boot(1e9)
+            m.start()
+            try:
+                v = ArduPilotVehicle(link, 1)
+                await v.connect(5)
+                ready = asyncio.ensure_future(v.wait_ready(20, report=said.append))
+                booting = "waiting for the end of its boot (HEARTBEAT system_status BOOT)"
+                await link.wait_until(lambda: any(t.startswith(booting) for t in said), 5, "the report", "vehicle 1")
+                sent_in_boot = set_modes(m)
+                m.slow_boot(m.sim_time)
+                await ready
+                result = sent_in_boot, set_modes(m), v.mode, m.mode_name
+                await v.close()
+                return result
+            finally:
+                m.stop()
+
+    sent_in_boot, sent, mode, mock_mode = run(scenario())
+    assert sent_in_boot == 0
+    assert sent == 1 and mode == mock_mode == "GUIDED"
+
+
+def test_a_mode_accepted_but_not_reported_in_time_is_waited_for_again_not_fatal():
+    """The vehicle accepts GUIDED, then its heartbeats stop for 4.5 s: the mode is not seen within
+    set_mode's 3 s. wait_ready reports it and goes on; when the heartbeats come back in GUIDED the
+    vehicle is ready."""
+    said: list[str] = []
+
+    async def scenario():
+        async with MavlinkLink("udpin:127.0.0.1:0") as link:
+            spec = dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}", speedup=20.0, ready_after=2.0)
+            with mock_vehicles(spec) as (m,):
+                v = ArduPilotVehicle(link, 1)
+                await v.connect(5)
+                await in_executor(m.wait_for, lambda mm: mm.ready, 5)
+                m.drop_heartbeats(4.5)
+                await v.wait_ready(20, report=said.append)
+                result = v.mode, m.mode_name
+                await v.close()
+                return result
+
+    mode, mock_mode = run(scenario())
+    assert mode == mock_mode == "GUIDED"
+    assert "mode GUIDED accepted but not reported (STABILIZE), asking again" in said
+
+
 def test_a_vehicle_that_never_gets_ready_times_out_naming_its_last_reason():
     async def scenario():
         async with MavlinkLink("udpin:127.0.0.1:0") as link:

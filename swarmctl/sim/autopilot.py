@@ -306,6 +306,13 @@ class MockAutopilot:
             self.ekf_after = float(seconds)
             self.boot.slow_ekf(seconds)
 
+    def slow_boot(self, seconds: float) -> None:
+        """The initialisation ends (HEARTBEAT leaves BOOT, "standby") only `seconds` simulated seconds
+        after boot, as on a loaded machine; the later stages come no sooner. Call again with
+        `sim_time` to end it now."""
+        with self._lock:
+            self.boot.slow_boot(seconds)
+
     def gps_glitch(self, north_m: float, east_m: float, seconds: float = 2.0) -> None:
         """Report a position jumped by north/east metres for `seconds` (wall clock)."""
         self._glitch = (north_m, east_m, time.monotonic() + seconds)
@@ -622,6 +629,9 @@ class MockAutopilot:
         self.sim_time += dt
         self.fence.tick(now)
         for stage in self.boot.advance(self.sim_time):
+            if stage == "standby" and self.personality.boot_resets_mode and not self.armed:
+                self.custom_mode = self.personality.custom_mode(self.personality.boot_mode)
+                self.target = None
             for text in self.personality.stage_texts.get(stage, ()):
                 self.statustext(text.format(alt=self.home[2]))
         self._prearm_texts()

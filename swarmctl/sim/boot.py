@@ -45,6 +45,7 @@ class Boot:
         self.times = {name: stages[name] * self.ready_after for name in STAGES[:-1]}
         ready = self.ready_after if ekf_after is None else max(0.0, float(ekf_after))
         self.times["ready"] = max(ready, max(self.times.values()))
+        self.planned = dict(self.times)  # before any slow_boot
         self.reached: set[str] = set()
         self.sim_time = 0.0
 
@@ -58,8 +59,19 @@ class Boot:
     def slow_ekf(self, ekf_after: float) -> None:
         """The EKF uses the GPS only `ekf_after` simulated seconds after boot (not before "manual")."""
         self.times["ready"] = max(float(ekf_after), max(t for s, t in self.times.items() if s != "ready"))
+        self.planned["ready"] = max(float(ekf_after), max(t for s, t in self.planned.items() if s != "ready"))
         if self.sim_time < self.times["ready"]:
             self.reached.discard("ready")
+
+    def slow_boot(self, standby_after: float) -> None:
+        """The initialisation ends (the heartbeat leaves BOOT) `standby_after` simulated seconds after
+        boot, or as planned if that is later; the stages after it come no sooner than it. A second
+        call moves the end again, earlier too (`slow_boot(sim_time)`: now)."""
+        at = max(float(standby_after), self.planned["standby"])
+        self.times["standby"] = at
+        for stage in STAGES[STAGES.index("standby") + 1 :]:
+            self.times[stage] = max(self.planned[stage], at)
+        self.reached = {s for s in self.reached if self.sim_time >= self.times[s]}
 
     def has(self, stage: str) -> bool:
         return stage in self.reached

@@ -75,6 +75,9 @@ class Personality(abc.ABC):
     version: ClassVar[int]  # AUTOPILOT_VERSION.flight_sw_version
     capabilities: ClassVar[int]  # AUTOPILOT_VERSION.capabilities
     boot_status: ClassVar[int] = MAV.MAV_STATE_BOOT  # HEARTBEAT.system_status before the "standby" stage
+    # the "standby" stage puts the vehicle back in boot_mode, undoing a mode accepted during the boot
+    # (ArduCopter's initialisation ends by setting INITIAL_MODE)
+    boot_resets_mode: ClassVar[bool] = False
     # the MAV_FRAMEs a DO_REPOSITION sent as COMMAND_INT is taken in (others: UNSUPPORTED_MAV_FRAME);
     # None: any frame (COMMAND_LONG has none and is always taken)
     reposition_frames: ClassVar[frozenset[int] | None] = None
@@ -131,6 +134,7 @@ class ArduPilotPersonality(Personality):
 
     autopilot = ARDUPILOT
     boot_mode = "STABILIZE"
+    boot_resets_mode = True  # SITL: GUIDED accepted and reported in BOOT, STABILIZE at "ArduPilot Ready"
     rtl_alt = 15.0  # RTL_ALT 1500 cm
     default_streams: Mapping[int, float] = {}  # a fresh ArduPilot sends only heartbeats
     params: Mapping[str, float] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return

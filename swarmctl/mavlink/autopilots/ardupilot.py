@@ -32,7 +32,7 @@ from typing import Any
 from swarmctl.geo.fence import farthest_metres
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
 from swarmctl.mavlink.codec import from_deg_e7, to_deg_e7
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, NotReady
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, NotReady, WaitTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
 from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
 
@@ -277,6 +277,8 @@ class ArduPilotVehicle(Vehicle):
             return ["its heartbeat"]
         missing = []
         mode, since = self._mode_since
+        if self.booting():
+            missing.append("the end of its boot (HEARTBEAT system_status BOOT)")
         if self._custom_mode() != ARDUPILOT.custom_mode(ARDUPILOT.command_mode):
             missing.append(f"mode {ARDUPILOT.command_mode} (in {self.mode})")
         gps = self._msg("GPS_RAW_INT")
@@ -299,15 +301,23 @@ class ArduPilotVehicle(Vehicle):
                 missing.append("the pre-arm checks")
         return missing
 
+    def booting(self) -> bool:
+        """The autopilot's heartbeat says MAV_STATE_BOOT. ArduCopter accepts a mode then, and its
+        initialisation ends by setting its initial mode (INITIAL_MODE, STABILIZE): a mode asked for
+        during the boot is undone (measured on SITL, docs/mavlink.md)."""
+        hb = self.link.peer(self.sysid).heartbeat
+        return hb is not None and hb.system_status == MAV.MAV_STATE_BOOT
+
     def ready(self) -> bool:
         """The vehicle reports it can arm in GUIDED (see not_ready)."""
         return not self.not_ready()
 
     async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
-        """GUIDED first, then wait until the vehicle can arm in it (not_ready() is empty). Each
-        STATUSTEXT it sends meanwhile, and each change of what is missing ("waiting for ..."), goes to
-        report(text). NotReady after `timeout` names the last STATUSTEXT of warning severity or worse
-        (PreArm: ..., Arm: ...) and what was still missing."""
+        """GUIDED first (once the autopilot has booted), then wait until the vehicle can arm in it
+        (not_ready() is empty). A refused mode, or one its heartbeat does not report in time, is asked
+        for again a second later. Each STATUSTEXT the vehicle sends meanwhile, and each change of what
+        is missing ("waiting for ..."), goes to report(text). NotReady after `timeout` names the last
+        STATUSTEXT of warning severity or worse (PreArm: ..., Arm: ...) and what was still missing."""
         started = time.monotonic()
         deadline = started + timeout
         await self.link.wait_heartbeat(self.sysid, timeout)
@@ -316,14 +326,17 @@ class ArduPilotVehicle(Vehicle):
         guided = ARDUPILOT.custom_mode(ARDUPILOT.command_mode)
         while True:
             now = time.monotonic()
-            if self._custom_mode() != guided and not self.lost and now - refused > 1.0:
+            if self._custom_mode() != guided and not self.lost and not self.booting() and now - refused > 1.0:
                 try:
                     await self.set_mode(ARDUPILOT.command_mode)
-                except CommandRejected as exc:  # firmware that wants a position first: try again
+                except (CommandRejected, WaitTimeout) as exc:  # e.g. firmware that wants a position first
                     refused = time.monotonic()
-                    reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
+                    if isinstance(exc, CommandRejected):
+                        reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
+                    else:
+                        reason = f"mode {ARDUPILOT.command_mode} accepted but not reported ({self.mode})"
                     if report is not None:
-                        report(reason)
+                        report(reason + ", asking again")
             for at, severity, text in list(peer.statustexts):
                 if at > heard:
                     heard = at
