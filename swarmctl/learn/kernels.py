@@ -44,17 +44,22 @@ _LAST = torch.channels_last
 _POINTWISE = torch.backends.mkldnn.is_available() and hasattr(torch.ops.mkldnn, "_convolution_pointwise")
 
 
-def _fusable(x: torch.Tensor, weight: torch.Tensor) -> bool:
+def _fusable(x: torch.Tensor, weight: torch.Tensor, groups: int = 1) -> bool:
     """Where torch's own convolution is oneDNN's too: float32 on the CPU with channels-last filters
-    (contiguous filters take torch's native kernel for some small inputs, whose sums differ)."""
+    (contiguous filters take torch's native kernel for some small inputs, whose sums differ), and
+    not the small single-row 3x3 case torch sends to its native kernel as faster (ConvParams::
+    use_mkldnn: one row, one group, filters of 3 or less, at most 20,480 input values)."""
     cpu = x.device.type == "cpu" and x.dtype == torch.float32
-    return _POINTWISE and torch.backends.mkldnn.enabled and cpu and weight.is_contiguous(memory_format=_LAST)
+    small = x.shape[0] == 1 and groups == 1 and min(weight.shape[-2:]) <= 3 and x.numel() <= 20480
+    return (
+        _POINTWISE and torch.backends.mkldnn.enabled and cpu and weight.is_contiguous(memory_format=_LAST) and not small
+    )
 
 
 def conv_relu(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, stride, padding, groups: int = 1):
     """relu(conv2d(x)), in one oneDNN primitive where it gives torch's numbers (_fusable), without
     gradients."""
-    if not _fusable(x, weight):
+    if not _fusable(x, weight, groups):
         return F.relu(F.conv2d(x, weight, bias, stride, padding, groups=groups))
     return torch.ops.mkldnn._convolution_pointwise(x, weight, bias, padding, stride, [1, 1], groups, "relu", [], "")
 
@@ -95,7 +100,7 @@ class ConvReLU(nn.Conv2d):
     state to Conv2d: fuse_conv_relu turns Conv2d modules into ConvReLU in place."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if not _fusable(x, self.weight):
+        if not _fusable(x, self.weight, self.groups):
             return F.relu(super().forward(x))
         return _ConvReLU.apply(x, self.weight, self.bias, list(self.stride), list(self.padding), self.groups)
 
