@@ -60,6 +60,7 @@ _AUTOPILOT_NAMES = {"PX4": "px4", "ARDUPILOT": "ardupilot"}
 _RESULT_NAMES = {REPOSITION_FRAME_REFUSED: "UNSUPPORTED_MAV_FRAME"}
 _FRAME_NAMES = {0: "GLOBAL", 5: "GLOBAL_INT"}
 _COMMAND_ACK_S, _COMMAND_ATTEMPTS = 1.0, 3  # a COMMAND_INT sent through MavlinkDirect: wait, attempts
+_TAKEOFF_ATTEMPTS = 3  # arm and take-off sent again after a disarm on the ground
 _OUTBOX_MAX = 256  # knowledge frames waiting for MAVSDK; more are dropped (the bus has them all the same)
 
 
@@ -376,16 +377,22 @@ class PX4Vehicle(Vehicle):
         got = await self._call("get_takeoff_altitude", self.action.get_takeoff_altitude)
         if got is None or abs(float(got) - rel_alt) > 0.1:
             raise MavlinkError(f"{self.name}: take-off altitude reads back as {got}, not {rel_alt:g} m")
-        await self.arm(min(30.0, left()))
-        await self._call("takeoff", self.action.takeoff)
         pos = self._position
         assert pos is not None
         self.target = Target(pos.lat, pos.lon, rel_alt)
-        await self._poll(
-            lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt,
-            left(),
-            f"take-off altitude {rel_alt:g} m",
-        )
+        climbed = lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt  # noqa: E731
+        # A loaded SITL sometimes takes the take-off and then disarms on the ground in HOLD (its
+        # pre-flight auto-disarm): arm and send the take-off again rather than wait it out.
+        dropped = lambda: not self._armed and (p := self._position) is not None and p.rel_alt < 1.0  # noqa: E731
+        for attempt in range(1, _TAKEOFF_ATTEMPTS + 1):
+            await self.arm(min(30.0, left()))
+            await self._call("takeoff", self.action.takeoff)
+            await self._poll(lambda: climbed() or dropped(), left(), f"take-off altitude {rel_alt:g} m")
+            if climbed():
+                return
+            log.warning("%s: disarmed on the ground after take-off %d of %d", self.name, attempt, _TAKEOFF_ATTEMPTS)
+        what = f"take-off altitude {rel_alt:g} m ({_TAKEOFF_ATTEMPTS} take-offs, each disarmed on the ground)"
+        raise WaitTimeout(what, self.name, time.monotonic() - start, self._state_text())
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         home = self._home
