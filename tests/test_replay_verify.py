@@ -73,7 +73,7 @@ def test_every_decision_of_a_fresh_demo_is_reproduced(which, request, tmp_path, 
     assert mission["seed"] == 4
     if which == "ddql_demo":
         assert mission["weights_sha256"] == load_checkpoint(MODEL)[1]["weights_sha256"]
-        assert mission["forward"] in ("torch", "onnx")
+        assert mission["forward"] in ("torch", "onnx+onednn", "torch+onednn")  # what `auto` picks
     for line in (rec / "inputs.jsonl").read_text().splitlines():
         assert check_event(json.loads(line), strict=True) == "inputs"
     code = main(["replay", str(rec), "--verify", "--out", str(tmp_path)])

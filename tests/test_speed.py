@@ -13,12 +13,21 @@ from swarmctl.cli import main
 from swarmctl.errors import InputError
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy import draws
-from swarmctl.policy.forward import OnnxForward, TorchForward, make_forward, onnx_available
-from swarmctl.policy.qnet import QNetwork, forward_flops
+from swarmctl.policy.forward import (
+    SMALL_ROWS,
+    OneDnnForward,
+    OnnxForward,
+    TorchForward,
+    make_forward,
+    onednn_available,
+    onnx_available,
+)
+from swarmctl.policy.qnet import GlobalLocalQNetwork, QNetwork, forward_flops
 from swarmctl.policy.threads import ENV_VAR, set_inference_threads, threads_from_env
 from swarmctl.world.moves import MOVES, cell_table, move_table
 
 needs_onnx = pytest.mark.skipif(not onnx_available(), reason="onnxruntime is not installed (pip install '.[onnx]')")
+needs_onednn = pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN fused convolution")
 
 
 @needs_onnx
@@ -39,16 +48,48 @@ def test_the_torch_forward_in_chunks_is_the_network_in_one_call():
     assert np.abs(TorchForward(net, chunk=64)(obs) - whole).max() < 1e-6
 
 
+@needs_onednn
+@pytest.mark.parametrize("cls", [QNetwork, GlobalLocalQNetwork])
+@pytest.mark.parametrize("rows", [1, 2, 17, 64, 130])
+def test_the_onednn_forward_matches_torch_within_1e5_and_leaves_the_network_alone(cls, rows):
+    torch.manual_seed(rows)
+    net = cls(13)
+    before = {k: v.clone() for k, v in net.state_dict().items()}
+    obs = np.random.default_rng(rows).random((rows, cls.in_channels, 13, 13), dtype=np.float32).round()
+    fast, reference = OneDnnForward(net), TorchForward(net)
+    assert np.abs(fast(obs) - reference(obs)).max() < 1e-5
+    assert np.array_equal(fast(obs), fast(obs.copy()))  # the same rows, the same bits
+    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
+    assert all(type(m) is torch.nn.Conv2d for m in net.modules() if isinstance(m, torch.nn.Conv2d))
+
+
+@needs_onednn
+def test_the_split_forward_sends_small_calls_to_one_forward_and_batches_to_the_other():
+    net = QNetwork(20)
+    split = make_forward(net, "torch+onednn")
+    assert split.name == "torch+onednn" and split.rows == SMALL_ROWS
+    rng = np.random.default_rng(0)
+    for rows in (1, SMALL_ROWS, SMALL_ROWS + 1, 100):
+        obs = rng.random((rows, 3, 20, 20), dtype=np.float32).round()
+        chosen = split.small if rows <= SMALL_ROWS else split.large
+        assert np.array_equal(split(obs), chosen(obs))
+
+
 def test_forward_choice_and_its_errors(monkeypatch):
     net = QNetwork(20)
     assert make_forward(net, "torch").name == "torch"
-    assert make_forward(net, "auto").name == ("onnx" if onnx_available() else "torch")
+    small = "onnx" if onnx_available() else "torch"
+    assert make_forward(net, "auto").name == (f"{small}+onednn" if onednn_available() else small)
     with pytest.raises(InputError, match="choose one of"):
         make_forward(net, "tensorrt")
     monkeypatch.setattr("swarmctl.policy.forward.onnx_available", lambda: False)
+    monkeypatch.setattr("swarmctl.policy.forward.onednn_available", lambda: False)
     assert make_forward(net, "auto").name == "torch"
-    with pytest.raises(InputError, match=r"swarmctl\[onnx\]"):
-        make_forward(net, "onnx")
+    for backend in ("onnx", "onnx+onednn"):
+        with pytest.raises(InputError, match=r"swarmctl\[onnx\]"):
+            make_forward(net, backend)
+    with pytest.raises(InputError, match="oneDNN"):
+        make_forward(net, "onednn")
 
 
 def test_the_network_is_the_papers_4_88_mflop():

@@ -37,6 +37,7 @@ PHASES = (
     ("swarmctl.policy.ddql", "observe", "  observations"),
     ("swarmctl.policy.forward", "OnnxForward.__call__", "  forward (onnxruntime)"),
     ("swarmctl.policy.forward", "TorchForward.__call__", "  forward (torch)"),
+    ("swarmctl.policy.forward", "OneDnnForward.__call__", "  forward (oneDNN)"),
     ("swarmctl.mission.decide", "obs_digest", "  observation digests"),
     ("swarmctl.mission.rounds", "poll_all", "knowledge poll (bus merge)"),
     ("swarmctl.knowledge.stepping", "_step_arrays", "knowledge step arrays"),

@@ -125,7 +125,7 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
                 "ddql: what ran the network (null: a planner)",
                 required=False,
                 nullable=True,
-                values=("torch", "onnx"),
+                values=("torch", "onnx", "onednn", "onnx+onednn", "torch+onednn"),
             ),
         ),
     ),

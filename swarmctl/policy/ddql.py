@@ -16,8 +16,11 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
   hovers on a target. The paper names this straggler, far from anything its window shows on a big
   map, as its residual failure; `frontier` hands it to the frontier planner (nearest unexplored
   cell) until it finds a target (default network);
-- `forward=auto|torch|onnx`: what runs the network (swarmctl.policy.forward): onnxruntime when it is
-  installed (`auto`, the default), plain torch (the reference), or onnxruntime, required.
+- `forward=auto|torch|onnx|onednn|onnx+onednn|torch+onednn`: what runs the network
+  (swarmctl.policy.forward): `auto` (the default) runs calls of up to 16 rows on onnxruntime when it is
+  installed (else plain torch) and larger batches on oneDNN's fused convolutions; `torch` is plain
+  torch (the reference), `onnx` onnxruntime only (required), `onednn` oneDNN only; `A+onednn` names
+  the split explicitly (a recording's forward is rebuilt by this name).
 
 `ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft. The observation settings (window,
 rho, sigma2, ...) are the ones stored in the checkpoint's world config.
@@ -34,6 +37,7 @@ from swarmctl.errors import InputError
 from swarmctl.policy.base import allowed_moves, choose
 from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.policy.draws import SOFTMAX, Draws
+from swarmctl.policy.forward import BACKENDS as FORWARD_BACKENDS
 from swarmctl.policy.forward import make_forward
 from swarmctl.policy.planners import FrontierPolicy
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
@@ -139,13 +143,13 @@ _CHOICES = {
     "hover": ("yes", "no"),
     "mask": ("yes", "no"),
     "straggler": ("network", "frontier"),
-    "forward": ("auto", "torch", "onnx"),
+    "forward": FORWARD_BACKENDS,
 }
 
 
 def make_ddql_policy(spec: str) -> DDQLPolicy:
     """Parse `ddql:PATH[:tau=T][:taken=remove|keep][:hover=yes|no][:mask=yes|no]
-    [:straggler=network|frontier][:forward=auto|torch|onnx]` or `ddql-greedy:PATH[...]`, options in any order."""
+    [:straggler=network|frontier][:forward=auto|torch|onnx|...]` or `ddql-greedy:PATH[...]`, options in any order."""
     kind, _, rest = spec.partition(":")
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")

@@ -9,12 +9,22 @@ Why onnxruntime: at batch 1 the network is call-bound. On one thread (2-core AMD
 eager torch took 4.6x the network's FLOP time at batch 2, TorchScript frozen and optimised 3.8x,
 torch.compile (inductor, frozen weights) 3.7x after 16 s of compiling, onnxruntime 2.0x with its
 extended graph optimisations (2.3x with the NCHWc layout, which pads the 20 channels to 32).
-onnxruntime's Q-values agree with torch's within 1e-5 (tests/test_forward.py pins it); they are not
+onnxruntime's Q-values agree with torch's within 1e-5 (tests/test_speed.py pins it); they are not
 bit-identical, so a softmax draw that falls within about 1e-7 of a boundary may go the other way.
+
+Why oneDNN for batches: past SMALL_ROWS rows the network is compute-bound, and torch on channels-last
+filters with each convolution and its ReLU as one oneDNN primitive (swarmctl.policy.fused) is the
+fastest measured. One thread, min of 30 calls, a busy 2-core Intel Xeon, us a row at 16 / 50 / 64 rows:
+onnxruntime 148 / 114 / 116, eager torch channels-last 104 / 82 / 72, fused 77 / 67 / 67 (at one row
+fused is 512, onnxruntime 182). `auto` therefore runs calls of up to SMALL_ROWS rows on onnxruntime
+(eager torch without it) and larger ones on oneDNN: its name says both ("onnx+onednn"), and a
+recording's forward is rebuilt by that name. The split depends on the row count only, so the same
+batch gets the same numbers.
 """
 
 from __future__ import annotations
 
+import copy
 import io
 import warnings
 
@@ -22,9 +32,10 @@ import numpy as np
 import torch
 
 from swarmctl.errors import InputError
+from swarmctl.policy.fused import POINTWISE, fuse_conv_relu
 from swarmctl.policy.qnet import QNetwork
 
-BACKENDS = ("auto", "torch", "onnx")
+BACKENDS = ("auto", "torch", "onnx", "onednn", "onnx+onednn", "torch+onednn")
 CHUNK = 64  # rows per forward call (one thread, 1,024 rows: torch 120 us a row in chunks of 64, 194 in
 #              chunks of 256, 243 unchunked; onnxruntime 94-101 from 64 to 1,024)
 SMALL_ROWS = 16  # up to this many rows a call runs on a kept output binding (OnnxForward._run_bound)
@@ -125,12 +136,57 @@ class OnnxForward:
         return np.concatenate([run(x[i : i + self.chunk]) for i in range(0, len(x), self.chunk)])
 
 
-def make_forward(net: QNetwork, backend: str = "auto", key: str | None = None) -> TorchForward | OnnxForward:
+class OneDnnForward:
+    """torch on a channels-last copy of the network whose convolutions and ReLUs are fused oneDNN
+    primitives (swarmctl.policy.fused): the fastest forward for batches here."""
+
+    name = "onednn"
+
+    def __init__(self, net: QNetwork, chunk: int = CHUNK):
+        self.net = fuse_conv_relu(copy.deepcopy(net).eval().to(memory_format=torch.channels_last))
+        self.chunk = chunk
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Q-values (N, 5) for observations (N, 3, F, F)."""
+        x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
+        with torch.inference_mode():
+            parts = [self.net(part.contiguous(memory_format=torch.channels_last)) for part in x.split(self.chunk)]
+            return (parts[0] if len(parts) == 1 else torch.cat(parts)).numpy()
+
+
+class SplitForward:
+    """Calls of up to `rows` rows on `small`, larger ones on `large` (module docstring)."""
+
+    def __init__(self, small: TorchForward | OnnxForward, large: OneDnnForward, rows: int = SMALL_ROWS):
+        self.small, self.large, self.rows = small, large, rows
+        self.name = f"{small.name}+{large.name}"
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        """Q-values (N, 5) for observations (N, 3, F, F)."""
+        return self.small(obs) if len(obs) <= self.rows else self.large(obs)
+
+
+Forward = TorchForward | OnnxForward | OneDnnForward | SplitForward
+
+
+def onednn_available() -> bool:
+    """Whether torch here runs convolutions and their ReLU as one oneDNN primitive."""
+    return POINTWISE and torch.backends.mkldnn.is_available()
+
+
+def make_forward(net: QNetwork, backend: str = "auto", key: str | None = None) -> Forward:
     """The forward for `backend` (module docstring); `key` caches the ONNX export (the weights hash)."""
     if backend not in BACKENDS:
         raise InputError(f"forward {backend!r}: choose one of {', '.join(BACKENDS)}")
-    if backend == "onnx" and not onnx_available():
-        raise InputError("forward=onnx needs onnxruntime: pip install 'swarmctl[onnx]', or use forward=torch")
-    if backend == "torch" or (backend == "auto" and not onnx_available()):
-        return TorchForward(net)
-    return OnnxForward(net, key=key)
+    if "onnx" in backend and not onnx_available():
+        raise InputError(f"forward={backend} needs onnxruntime: pip install 'swarmctl[onnx]', or use forward=torch")
+    if "onednn" in backend and not onednn_available():
+        raise InputError(f"forward={backend} needs a torch built with oneDNN (the CPU wheels); use forward=torch")
+    if backend == "auto":
+        small = "onnx" if onnx_available() else "torch"
+        backend = f"{small}+onednn" if onednn_available() else small
+    small_name, _, large_name = backend.partition("+")
+    if small_name == "onednn":
+        return OneDnnForward(net)
+    small = TorchForward(net) if small_name == "torch" else OnnxForward(net, key=key)
+    return SplitForward(small, OneDnnForward(net)) if large_name else small

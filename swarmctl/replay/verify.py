@@ -149,7 +149,7 @@ def rebuild_policy(mission: dict, model: Path | None = None) -> FieldPolicy:
             where = f"--model {chosen}" if model is not None else f"{chosen}, the checkpoint the recording names,"
             raise InputError(f"{where} is not there; give the checkpoint the mission flew with --model PATH")
         forward = mission.get("forward") or "auto"
-        if forward == "onnx" and not onnx_available():
+        if "onnx" in forward and not onnx_available():
             raise InputError(
                 "the recording's network ran on onnxruntime, which is not installed here: pip install 'swarmctl[onnx]'"
             )
