@@ -14,7 +14,7 @@ from swarmctl.errors import InputError
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy import draws
 from swarmctl.policy.forward import (
-    SMALL_ROWS,
+    SPLIT_ROWS,
     OneDnnForward,
     OnnxForward,
     TorchForward,
@@ -67,11 +67,11 @@ def test_the_onednn_forward_matches_torch_within_1e5_and_leaves_the_network_alon
 def test_the_split_forward_sends_small_calls_to_one_forward_and_batches_to_the_other():
     net = QNetwork(20)
     split = make_forward(net, "torch+onednn")
-    assert split.name == "torch+onednn" and split.rows == SMALL_ROWS
+    assert split.name == "torch+onednn" and split.rows == SPLIT_ROWS
     rng = np.random.default_rng(0)
-    for rows in (1, SMALL_ROWS, SMALL_ROWS + 1, 100):
+    for rows in (1, SPLIT_ROWS, SPLIT_ROWS + 1, 100):
         obs = rng.random((rows, 3, 20, 20), dtype=np.float32).round()
-        chosen = split.small if rows <= SMALL_ROWS else split.large
+        chosen = split.small if rows <= SPLIT_ROWS else split.large
         assert np.array_equal(split(obs), chosen(obs))
 
 

@@ -17,7 +17,7 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
   map, as its residual failure; `frontier` hands it to the frontier planner (nearest unexplored
   cell) until it finds a target (default network);
 - `forward=auto|torch|onnx|onednn|onnx+onednn|torch+onednn`: what runs the network
-  (swarmctl.policy.forward): `auto` (the default) runs calls of up to 16 rows on onnxruntime when it is
+  (swarmctl.policy.forward): `auto` (the default) runs calls of up to 6 rows on onnxruntime when it is
   installed (else plain torch) and larger batches on oneDNN's fused convolutions; `torch` is plain
   torch (the reference), `onnx` onnxruntime only (required), `onednn` oneDNN only; `A+onednn` names
   the split explicitly (a recording's forward is rebuilt by this name).

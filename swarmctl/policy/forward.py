@@ -12,14 +12,14 @@ extended graph optimisations (2.3x with the NCHWc layout, which pads the 20 chan
 onnxruntime's Q-values agree with torch's within 1e-5 (tests/test_speed.py pins it); they are not
 bit-identical, so a softmax draw that falls within about 1e-7 of a boundary may go the other way.
 
-Why oneDNN for batches: past SMALL_ROWS rows the network is compute-bound, and torch on channels-last
+Why oneDNN for batches: past a few rows the network is compute-bound, and torch on channels-last
 filters with each convolution and its ReLU as one oneDNN primitive (swarmctl.policy.fused) is the
-fastest measured. One thread, min of 30 calls, a busy 2-core Intel Xeon, us a row at 16 / 50 / 64 rows:
-onnxruntime 148 / 114 / 116, eager torch channels-last 104 / 82 / 72, fused 77 / 67 / 67 (at one row
-fused is 512, onnxruntime 182). `auto` therefore runs calls of up to SMALL_ROWS rows on onnxruntime
-(eager torch without it) and larger ones on oneDNN: its name says both ("onnx+onednn"), and a
-recording's forward is rebuilt by that name. The split depends on the row count only, so the same
-batch gets the same numbers.
+fastest measured. One thread, min of 40 calls, 2-core Intel Xeon, us a row at 1 / 4 / 6 / 8 / 16 / 50
+rows: onnxruntime 106 / 95 / 94 / 97 / 96 / 98, fused 281 / 112 / 95 / 84 / 70 / 56 (the same
+crossover, at 16 rows 148 against 77, on the machine busy with other work). `auto` therefore runs
+calls of up to SPLIT_ROWS rows on onnxruntime (eager torch without it) and larger ones on oneDNN: its
+name says both ("onnx+onednn"), and a recording's forward is rebuilt by that name. The split depends
+on the row count only, so the same batch gets the same numbers.
 """
 
 from __future__ import annotations
@@ -38,6 +38,7 @@ from swarmctl.policy.qnet import QNetwork
 BACKENDS = ("auto", "torch", "onnx", "onednn", "onnx+onednn", "torch+onednn")
 CHUNK = 64  # rows per forward call (one thread, 1,024 rows: torch 120 us a row in chunks of 64, 194 in
 #              chunks of 256, 243 unchunked; onnxruntime 94-101 from 64 to 1,024)
+SPLIT_ROWS = 6  # up to this many rows a call of the split forward runs on the small backend
 SMALL_ROWS = 16  # up to this many rows a call runs on a kept output binding (OnnxForward._run_bound)
 _EXPORTED: dict[str, bytes] = {}  # ONNX models by weights hash: one export per network per process
 
@@ -157,7 +158,7 @@ class OneDnnForward:
 class SplitForward:
     """Calls of up to `rows` rows on `small`, larger ones on `large` (module docstring)."""
 
-    def __init__(self, small: TorchForward | OnnxForward, large: OneDnnForward, rows: int = SMALL_ROWS):
+    def __init__(self, small: TorchForward | OnnxForward, large: OneDnnForward, rows: int = SPLIT_ROWS):
         self.small, self.large, self.rows = small, large, rows
         self.name = f"{small.name}+{large.name}"
 
