@@ -120,12 +120,14 @@ def _step_arrays(
         np.logical_or.at(stack.obstacle, (r, x, y), obs)
         stack.pending[r[new], x[new], y[new]] = True
     # the push rule's notes (KnowledgeExchange._note_learned)
-    k, x, y = np.nonzero(stack.explored[rows] & ~stack.noted[rows])
+    whole = len(rows) == stack.rows and bool((rows == np.arange(stack.rows)).all())  # views, not copies
+    at = slice(None) if whole else rows
+    k, x, y = _nonzero(stack.explored[at] > stack.noted[at])
     stack.learned_at[rows[k], x, y] = step
     stack.noted[rows[k], x, y] = True
     # the deltas (Knowledge.take_delta): each row's pending cells in x, y order, with its position
-    k, x, y = np.nonzero(stack.pending[rows])
-    stack.pending[rows] = False
+    k, x, y = _nonzero(stack.pending[at])
+    stack.pending[at] = False
     kr = rows[k]
     found = np.stack([x, y], axis=1)
     phi, obstacle = stack.phi_q[kr, x, y], stack.obstacle[kr, x, y]
@@ -137,3 +139,11 @@ def _step_arrays(
         a, b = bounds[i], bounds[i + 1]
         deltas.append(Delta(ex.vehicle_id, *pos, found[a:b], phi[a:b], obstacle[a:b]))
     return deltas
+
+
+def _nonzero(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """np.nonzero of a 3-d mask, in the same order, through flatnonzero (several times faster)."""
+    _, w, h = mask.shape
+    k, rest = np.divmod(np.flatnonzero(mask), w * h)
+    x, y = np.divmod(rest, h)
+    return k, x, y
