@@ -544,7 +544,7 @@ def beliefs_from_knowledge(
         raise ValueError("beliefs of one batch share one grid")
     a = len(knowledges)
     me = np.array([k.vehicle_id for k in knowledges], dtype=np.int64)
-    keys = _stacked(knowledges, "position", UNKNOWN)
+    keys = stacked_field(knowledges, "position", UNKNOWN)
     known = keys >= 0
     named = np.flatnonzero(known.any(axis=0))
     top = max(int(me.max()), int(named[-1]) if named.size else -1)
@@ -568,7 +568,7 @@ def beliefs_from_knowledge(
     rows = _one_shared_map(knowledges, names)
     same = rows is not None  # every agent knows the same map (ideal sharing): built once, read through views
     if rows is None:
-        rows = [_stacked(knowledges, name) for name in names]
+        rows = [stacked_field(knowledges, name) for name in names]
     explored, phi_q, target_step, obstacle = rows
     targets = (explored & (phi_q == PHI_LEVELS)) | (target_step != NEVER)
     value = np.stack(_known_value(targets, settings))
@@ -592,7 +592,7 @@ def beliefs_from_knowledge(
     )
 
 
-def _stacked(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
+def stacked_field(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
     """(A, ...) the stack arrays `name` of the knowledges' rows: one gather when they share a stack."""
     stack = knowledges[0]._stack
     if all(k._stack is stack for k in knowledges):

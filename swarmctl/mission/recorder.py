@@ -43,6 +43,8 @@ from typing import IO, Any
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from swarmctl.knowledge.model import stacked_field
+from swarmctl.knowledge.stack import NEVER
 from swarmctl.mission.inputs import InputsEncoder
 
 _TS = struct.Struct(">Q")
@@ -177,6 +179,16 @@ class Recorder:
         """One line of events.jsonl, flushed at once."""
         self.events_at_once([(kind, fields)])
 
+    def plain_event(self, kind: str, **fields: Any) -> None:
+        """`event` for fields that are JSON already, floats rounded as wanted (the step record, the
+        longest line of a round): written without the copy `_jsonable` makes, unless json refuses them."""
+        record = {"t": time.time(), "event": kind, **fields}
+        try:
+            line = json.dumps(record, separators=_SEPARATORS) + "\n"
+        except (TypeError, ValueError):  # a numpy value after all
+            line = json.dumps(_jsonable(record), separators=_SEPARATORS) + "\n"
+        self._write_events([line], kind in CHANGE_KINDS)
+
     def events_at_once(self, events: list[tuple[str, dict]]) -> None:
         """Lines of events.jsonl, (kind, fields) each, in one write, flushed at once (one step's refusals)."""
         if not events:
@@ -185,13 +197,16 @@ class Recorder:
             json.dumps(_jsonable({"t": time.time(), "event": kind, **fields}), separators=_SEPARATORS) + "\n"
             for kind, fields in events
         ]
+        self._write_events(lines, sum(kind in CHANGE_KINDS for kind, _ in events))
+
+    def _write_events(self, lines: list[str], changes: int) -> None:
         with self._lock:
             if self.closed:
                 return
             self._events.write(lines[0] if len(lines) == 1 else "".join(lines))
             self._events.flush()
             self.events += len(lines)
-            self.changes += sum(kind in CHANGE_KINDS for kind, _ in events)
+            self.changes += changes
 
     def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
         """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
@@ -203,13 +218,16 @@ class Recorder:
         views = list(views)
         if not views:
             return 0
-        explored = np.stack([np.asarray(kn.explored, dtype=bool).reshape(-1) for _, kn in views])
+        knowledges = [kn for _, kn in views]
+        explored = stacked_field(knowledges, "explored").reshape(len(views), -1)
         counts = np.count_nonzero(explored, axis=1).tolist()
+        known_targets = (stacked_field(knowledges, "target_step") != NEVER).reshape(len(views), -1)
+        n_targets = np.count_nonzero(known_targets, axis=1).tolist()
         changed = []
         with self._lock:
             known = self._known
-            for u, (name, kn) in enumerate(views):
-                seen = (counts[u], len(kn.targets))
+            for u, (name, _) in enumerate(views):
+                seen = (counts[u], n_targets[u])
                 if known.get(name) != seen:
                     known[name] = seen
                     changed.append(u)
@@ -218,10 +236,11 @@ class Recorder:
         packed = np.packbits(explored[changed], axis=1)
         tails: dict[tuple[bytes, tuple], str] = {}  # (packed map, targets) -> the line's encoded tail
         lines = []
+        height = views[0][1].height
         for row, u in zip(packed, changed):
-            name, kn = views[u]
-            targets = list(iter(kn.targets))  # not sorted(table): that asks the table its length too
-            targets.sort()
+            name = views[u][0]
+            flat = np.flatnonzero(known_targets[u])  # ascending: the cells sorted by x, then y
+            targets = list(zip((flat // height).tolist(), (flat % height).tolist()))
             key = (row.tobytes(), tuple(targets))
             tail = tails.get(key)
             if tail is None:

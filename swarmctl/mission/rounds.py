@@ -198,7 +198,9 @@ async def decision_round(c: Controller) -> bool:
         for a in c.agents
         if a not in searching
     ]
-    c.rec.event("step", step=c.step, vehicles=records, others=others, decide_ms=round(c.decide_times[-1] * 1000, 3))
+    c.rec.plain_event(
+        "step", step=c.step, vehicles=records, others=others, decide_ms=round(c.decide_times[-1] * 1000, 3)
+    )
     c.rec.knowledge(c.step, [(a.name, a.knowledge) for a in c.agents])
     return bool(moves)
 
