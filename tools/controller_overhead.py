@@ -8,8 +8,12 @@ round the policy time, the whole round, and the controller's own part (the round
 waiting for vehicles to reach their cells and for detector reports). The mocks run in a child process
 (or, with --same-process, in threads next to the controller, where they compete with it for the
 interpreter lock); on a small machine they still compete for the CPU, so the numbers are upper bounds.
+With --own-cpu the mocks' process runs on the last CPU and the controller (its loop and its link
+threads) on the others, as real vehicles fly their own computers; their work then no longer shares a
+core, and its caches, with the controller's.
 
-    python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--runs 3] [--out results/]
+    python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--runs 3] [--own-cpu]
+        [--out results/]
 
 With --runs N each size is flown N times, back to back, and the table gives the minimum and the median
 of the per-run means, with the machine's load average (1 min) before each run: on a shared machine
@@ -38,15 +42,28 @@ from swarmctl.mission.service import keep_summary  # noqa: E402
 from swarmctl.sim.swarm import SimSwarm, sim_plan  # noqa: E402
 
 
-def _host_mocks(size: int, speedup: float, seed: int, pipe) -> None:
-    """Child process: the mock vehicles, until the parent says stop."""
+def _host_mocks(size: int, speedup: float, seed: int, pipe, cpus: set[int] | None = None) -> None:
+    """Child process: the mock vehicles (on `cpus`, when given), until the parent says stop."""
+    if cpus is not None:
+        os.sched_setaffinity(0, cpus)
     grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
     with SimSwarm(grid, uavs=size, seed=seed, speedup=speedup) as swarm:
         pipe.send(swarm.specs)
         pipe.recv()
 
 
-def measure(size: int, policy: str, search: float, speedup: float, seed: int, same_process: bool) -> dict:
+def split_cpus() -> tuple[set[int], set[int]]:
+    """(the controller's CPUs, the mocks' CPU) for --own-cpu: the last CPU this process may use for
+    the mocks, the others for the controller."""
+    cpus = sorted(os.sched_getaffinity(0))
+    if len(cpus) < 2:
+        raise SystemExit("--own-cpu needs at least 2 CPUs")
+    return set(cpus[:-1]), {cpus[-1]}
+
+
+def measure(
+    size: int, policy: str, search: float, speedup: float, seed: int, same_process: bool, own_cpu: bool = False
+) -> dict:
     import multiprocessing as mp
 
     grid = GeoGrid.load(ROOT / "missions/chicago-loop/grid.npz")
@@ -58,8 +75,11 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             child = parent = None
         else:
             parent, child_end = mp.Pipe()
-            child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end))
+            mine, theirs = split_cpus() if own_cpu else (None, None)
+            child = mp.get_context("spawn").Process(target=_host_mocks, args=(size, speedup, seed, child_end, theirs))
             child.start()
+            if mine is not None:  # this thread's; the link threads started from it inherit it
+                os.sched_setaffinity(0, mine)
             specs = parent.recv()
             plan = sim_plan(grid, specs, policy, seed=seed, name="overhead", **kw)
         rec = Recorder(tmp)
@@ -78,6 +98,8 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
             outcome = asyncio.run(fly())
         finally:
             rec.close()
+            if own_cpu and not same_process:
+                os.sched_setaffinity(0, mine | theirs)
             if same_process:
                 swarm.stop()
             else:
@@ -87,7 +109,7 @@ def measure(size: int, policy: str, search: float, speedup: float, seed: int, sa
         return dict(
             vehicles=size,
             policy=policy,
-            mocks="same process" if same_process else "child process",
+            mocks="same process" if same_process else "child process" + (" on its own CPU" if own_cpu else ""),
             outcome=outcome,
             wall_s=round(took, 1),
             steps=controller.step,
@@ -125,22 +147,32 @@ def main() -> None:
     )
     ap.add_argument("--out", type=Path, default=None, help="folder for controller_overhead.json/.txt")
     ap.add_argument("--runs", type=int, default=1, help="flights per size (min and median reported)")
+    ap.add_argument(
+        "--own-cpu",
+        action="store_true",
+        help="run the mocks on the last CPU and the controller on the others (not with --same-process)",
+    )
     args = ap.parse_args()
     if args.runs < 1:
         ap.error("--runs must be at least 1")
+    if args.own_cpu and args.same_process:
+        ap.error("--own-cpu keeps the mocks' process apart: not with --same-process")
     rows = []
     for n in args.sizes:
         runs = []
         for _ in range(args.runs):
             load = os.getloadavg()[0]
             runs.append(
-                {**measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process), "load": load}
+                {
+                    **measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process, args.own_cpu),
+                    "load": load,
+                }
             )
         rows.append(summarise(runs))
     lines = [
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
         f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
-        f"{'the same' if args.same_process else 'a child'} process",
+        f"{'the same' if args.same_process else 'a child'} process" + (" on their own CPU" if args.own_cpu else ""),
         "",
         "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
         "|---:|---:|---:|---:|---:|---:|---:|",
