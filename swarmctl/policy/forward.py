@@ -15,8 +15,8 @@ bit-identical, so a softmax draw that falls within about 1e-7 of a boundary may 
 Why oneDNN for batches: past a few rows the network is compute-bound, and torch on channels-last
 filters with each convolution and its ReLU as one oneDNN primitive (swarmctl.policy.fused) is the
 fastest measured. One thread, min of 40 calls, 2-core Intel Xeon, us a row at 1 / 4 / 6 / 8 / 16 / 50
-rows: onnxruntime 106 / 95 / 94 / 97 / 96 / 98, fused 281 / 112 / 95 / 84 / 70 / 56 (the same
-crossover, at 16 rows 148 against 77, on the machine busy with other work). `auto` therefore runs
+rows: onnxruntime 106 / 95 / 94 / 97 / 96 / 98, fused 281 / 112 / 95 / 84 / 70 / 56 (on the same
+machine busy with other work, at 16 rows: 148 against 77). `auto` therefore runs
 calls of up to SPLIT_ROWS rows on onnxruntime (eager torch without it) and larger ones on oneDNN: its
 name says both ("onnx+onednn"), and a recording's forward is rebuilt by that name. The split depends
 on the row count only, so the same batch gets the same numbers.
