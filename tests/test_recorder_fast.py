@@ -124,3 +124,18 @@ def test_tlog_holds_each_frame_after_its_time_stamp(tmp_path):
         got.append(data[at + 8 : at + 8 + len(frame)])
         at += 8 + len(frame)
     assert at == len(data) and got == frames + frames[:1]
+
+
+def test_a_plain_event_writes_what_event_writes_and_takes_numpy_values_too(tmp_path):
+    rec = Recorder(tmp_path)
+    ready = dict(step=3, vehicles=[dict(vehicle="a", cell=(1, 2), q=[0.5, -1.25], refused=None)], decide_ms=1.5)
+    numpy = dict(step=np.int64(3), vehicles=[dict(vehicle="a", cell=np.array([1, 2]), q=[0.5, -1.25])])
+    for fields in (ready, numpy):
+        rec.event("step", **fields)
+        rec.plain_event("step", **fields)
+    rec.close()
+    lines = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
+    for line in lines:
+        line.pop("t")
+    assert lines[0] == lines[1] and lines[2] == lines[3] and lines[0]["vehicles"][0]["cell"] == [1, 2]
+    assert rec.events == 4
