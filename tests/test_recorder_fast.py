@@ -139,3 +139,30 @@ def test_a_plain_event_writes_what_event_writes_and_takes_numpy_values_too(tmp_p
         line.pop("t")
     assert lines[0] == lines[1] and lines[2] == lines[3] and lines[0]["vehicles"][0]["cell"] == [1, 2]
     assert rec.events == 4
+
+
+_JSON = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=5),
+    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=4),
+    max_leaves=30,
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(_JSON)
+def test_the_summary_text_reads_back_as_what_was_written(value):
+    from swarmctl.mission.recorder import summary_text
+
+    assert json.loads(summary_text(value)) == value
+
+
+def test_the_summary_text_puts_each_vehicle_and_each_top_level_field_on_its_own_line(tmp_path):
+    rec = Recorder(tmp_path)
+    summary = {"outcome": "complete", "vehicles": [{"name": f"uav{i}", "cell": [i, 2]} for i in range(3)], "n": 1}
+    rec.write_summary(summary, running=True)
+    rec.close()
+    lines = (tmp_path / "summary.json").read_text().splitlines()
+    assert lines[0] == "{" and lines[-1] == "}"
+    assert '    {"name": "uav1", "cell": [1, 2]},' in lines
+    assert '  "running": true' in lines and '  "outcome": "complete",' in lines
+    assert json.loads("\n".join(lines)) == {**summary, "running": True}

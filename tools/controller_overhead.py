@@ -15,6 +15,11 @@ core, and its caches, with the controller's.
     python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--runs 3] [--own-cpu]
         [--out results/]
 
+The header gives the machine's speed before the runs: a fixed workload of dict updates and small numpy
+calls (what a round is mostly made of) timed alone, in CPU ms, so that tables from different days, or
+machines, can be set side by side (a figure twice the reference's on a machine whose reference is
+twice as long is the same code at the same cost).
+
 With --runs N each size is flown N times, back to back, and the table gives the minimum and the median
 of the per-run means, with the machine's load average (1 min) before each run: on a shared machine
 the minimum is the figure least disturbed by other work.
@@ -50,6 +55,28 @@ def _host_mocks(size: int, speedup: float, seed: int, pipe, cpus: set[int] | Non
     with SimSwarm(grid, uavs=size, seed=seed, speedup=speedup) as swarm:
         pipe.send(swarm.specs)
         pipe.recv()
+
+
+def machine_reference_ms(rounds: int = 5) -> float:
+    """CPU ms (min of `rounds`) of a fixed workload like a round's: 20,000 dict updates and 2,000
+    small numpy calls."""
+    import numpy as np
+
+    a = np.random.default_rng(0).random(100)
+
+    def work() -> None:
+        counts: dict[int, int] = {}
+        for i in range(20000):
+            counts[i & 255] = counts.get(i & 255, 0) + 1
+        for _ in range(2000):
+            (a * 2.0).sum()
+
+    times = []
+    for _ in range(rounds):
+        started = time.thread_time()
+        work()
+        times.append(time.thread_time() - started)
+    return 1000 * min(times)
 
 
 def split_cpus() -> tuple[set[int], set[int]]:
@@ -157,6 +184,7 @@ def main() -> None:
         ap.error("--runs must be at least 1")
     if args.own_cpu and args.same_process:
         ap.error("--own-cpu keeps the mocks' process apart: not with --same-process")
+    reference = machine_reference_ms()
     rows = []
     for n in args.sizes:
         runs = []
@@ -173,12 +201,13 @@ def main() -> None:
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
         f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
         f"{'the same' if args.same_process else 'a child'} process" + (" on their own CPU" if args.own_cpu else ""),
+        f"machine reference (a fixed dict and small-numpy workload, alone, before the runs): {reference:.1f} ms",
         "",
         "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
         "|---:|---:|---:|---:|---:|---:|---:|",
     ]
     if args.runs > 1:
-        lines = lines[:2] + [
+        lines = lines[:3] + [
             f"min / median of {args.runs} runs per size; load: the 1-minute load average before each run",
             "",
             "| vehicles | rounds | policy ms (min / median) | controller CPU ms (min / median) | "
@@ -202,6 +231,8 @@ def main() -> None:
     print(text)
     if args.out is not None:
         args.out.mkdir(parents=True, exist_ok=True)
+        for r in rows:
+            r["machine_reference_ms"] = round(reference, 2)
         (args.out / "controller_overhead.json").write_text(json.dumps(rows, indent=2) + "\n")
         (args.out / "controller_overhead.txt").write_text(text + "\n")
 

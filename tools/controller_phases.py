@@ -51,6 +51,7 @@ PHASES = (
     ("swarmctl.mavlink.network", "MavlinkLink._deliver", "  listeners"),
     ("swarmctl.mavlink.autopilots.ardupilot", "ArduPilotVehicle._on_position", "    position reports"),
     ("swarmctl.mission.detector", "SensorFeed.on_tunnel", "    detector reports"),
+    ("swarmctl.knowledge.codec", "KnowledgeCodec.decode", "      decoded"),
     ("swarmctl.mavlink.network", "_call_batch_listeners", "  recorder tap (received frames)"),
     ("swarmctl.mission.recorder", "Recorder.packet", "recorder: sent frames"),
     ("swarmctl.mission.recorder", "Recorder.events_at_once", "recorder: events.jsonl"),
@@ -59,6 +60,9 @@ PHASES = (
     ("swarmctl.mission.controller", "Controller.summary", "running summary (built)"),
     ("swarmctl.mission.recorder", "Recorder.write_summary", "running summary (written)"),
     ("swarmctl.mission.rounds", "update_states", "state updates"),
+    ("swarmctl.mission.watch", "problems", "course checks (watch)"),
+    ("swarmctl.mission.flight", "sense", "sensing (reports -> footprint)"),
+    ("swarmctl.mavlink.autopilots.ardupilot", "ArduPilotVehicle._keep_telemetry", "telemetry keep-alive checks"),
 )
 
 

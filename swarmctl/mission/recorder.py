@@ -94,6 +94,21 @@ def _jsonable_other(value: Any) -> Any:
     return value
 
 
+def summary_text(value: Any, depth: int = 2, indent: str = "") -> str:
+    """`value` (JSON-ready) as JSON text for people: the outer `depth` levels of objects and arrays one
+    item a line, indented by two spaces a level, everything deeper on the item's line (so a vehicle of
+    summary.json is one line). The deep parts go through json's C encoder: `indent=` would send the
+    whole text through its pure-Python one (2.6 ms against 1.2 for 50 vehicles' summary)."""
+    if depth <= 0 or not isinstance(value, (dict, list)) or not value:
+        return json.dumps(value)
+    inner = indent + "  "
+    if isinstance(value, dict):
+        items = [f"{inner}{json.dumps(k)}: {summary_text(v, depth - 1, inner)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + indent + "}"
+    items = [inner + summary_text(v, depth - 1, inner) for v in value]
+    return "[\n" + ",\n".join(items) + "\n" + indent + "]"
+
+
 class Recorder:
     """Writes the mission folder; every method is safe to call from the loop and from link threads."""
 
@@ -301,7 +316,7 @@ class Recorder:
         """Replace summary.json whole (written beside it, then renamed over it), with `running`: true while
         the mission goes on, false for the final one."""
         path = self.folder / "summary.json"
-        text = json.dumps(_jsonable({**summary, "running": running}), indent=2) + "\n"
+        text = summary_text(_jsonable({**summary, "running": running})) + "\n"
         with self._lock:  # one writer at a time: the running summary and the final one share the name
             partial = path.with_name(f".{path.name}.partial")
             partial.write_text(text, encoding="utf-8")

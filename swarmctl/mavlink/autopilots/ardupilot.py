@@ -49,7 +49,7 @@ PREARM_LAG_S = 1.0
 # a requested message that has not come (or has stopped) for this long, or three of its periods, is
 # asked for again: SITL starts its streams 1.4 s after the first heartbeat
 STREAM_PATIENCE_S = 3.0
-KEEP_TELEMETRY_S = 0.25  # how often the driver looks for telemetry that is overdue
+KEEP_TELEMETRY_S = 1.0  # how often the driver looks for telemetry that is overdue (patience: 3 s)
 _WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
 
