@@ -51,6 +51,8 @@ def test_three_ardupilot_and_one_px4_find_and_hover_on_distinct_targets(tmp_path
     assert summary["messages"]["knowledge_sent"] > 0 and summary["messages"]["mavlink_received"] > 0
     for key in ("time_s", "search_time_s", "messages", "overhead_ms", "policy", "outcome"):
         assert key in summary
+    overhead = summary["overhead_ms"]  # the whole process's CPU holds the loop thread's
+    assert overhead["process_cpu_mean"] >= overhead["cpu_mean"] - 0.01 > 0, overhead
     # the recording: every step, every packet
     ev = events(tmp_path)
     steps = [e for e in ev if e["event"] == "step"]

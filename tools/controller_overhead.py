@@ -4,8 +4,10 @@ For each swarm size: start the mock vehicles (over loopback UDP), fly a search f
 with the given policy in ground mode (one controller flies every vehicle; the agents share knowledge
 on the in-process bus, swarmctl.knowledge.bus, and write their TUNNEL frames on their own vehicle's
 link), recording it as fly and demo do (the running summary.json included), and report per decision
-round the policy time, the whole round, and the controller's own part (the round minus the time spent
-waiting for vehicles to reach their cells and for detector reports). The mocks run in a child process
+round the policy time, the CPU time of the controller's loop thread and of its whole process (the loop
+with the links' reader threads: with --same-process the mocks' threads too), the whole round, and the
+controller's own part (the round minus the time spent waiting for vehicles to reach their cells and for
+detector reports). The mocks run in a child process
 (or, with --same-process, in threads next to the controller, where they compete with it for the
 interpreter lock); on a small machine they still compete for the CPU, so the numbers are upper bounds.
 With --own-cpu the mocks' process runs on the last CPU and the controller (its loop and its link
@@ -153,7 +155,12 @@ def summarise(runs: list[dict]) -> dict:
 
     out = dict(runs[0], runs=runs, loads=[round(r["load"], 2) for r in runs])
     out["rounds"] = min(r.get("rounds", 0) for r in runs)
-    for key, name in (("decide_mean", "decide"), ("cpu_mean", "cpu"), ("round_mean", "round")):
+    for key, name in (
+        ("decide_mean", "decide"),
+        ("cpu_mean", "cpu"),
+        ("process_cpu_mean", "process_cpu"),
+        ("round_mean", "round"),
+    ):
         values = [r[key] for r in runs if key in r]
         out[f"{name}_min"] = min(values) if values else float("nan")
         out[f"{name}_median"] = statistics.median(values) if values else float("nan")
@@ -203,27 +210,29 @@ def main() -> None:
         f"{'the same' if args.same_process else 'a child'} process" + (" on their own CPU" if args.own_cpu else ""),
         f"machine reference (a fixed dict and small-numpy workload, alone, before the runs): {reference:.1f} ms",
         "",
-        "| vehicles | rounds | policy ms | controller CPU ms | controller wall ms (mean) | (p95) | whole round ms |",
-        "|---:|---:|---:|---:|---:|---:|---:|",
+        "| vehicles | rounds | policy ms | controller CPU ms | process CPU ms | controller wall ms (mean) | (p95) "
+        "| whole round ms |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     if args.runs > 1:
         lines = lines[:3] + [
             f"min / median of {args.runs} runs per size; load: the 1-minute load average before each run",
             "",
             "| vehicles | rounds | policy ms (min / median) | controller CPU ms (min / median) | "
-            "whole round ms (median) | load |",
-            "|---:|---:|---:|---:|---:|---:|",
+            "process CPU ms (min / median) | whole round ms (median) | load |",
+            "|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for r in rows:
             lines.append(
                 f"| {r['vehicles']} | {r.get('rounds', 0)} | {r['decide_min']:.1f} / {r['decide_median']:.1f} | "
-                f"{r['cpu_min']:.1f} / {r['cpu_median']:.1f} | {r['round_median']:.1f} | "
+                f"{r['cpu_min']:.1f} / {r['cpu_median']:.1f} | "
+                f"{r['process_cpu_min']:.1f} / {r['process_cpu_median']:.1f} | {r['round_median']:.1f} | "
                 f"{' '.join(f'{x:.1f}' for x in r['loads'])} |"
             )
     for r in rows if args.runs == 1 else []:
         lines.append(
             f"| {r['vehicles']} | {r.get('rounds', 0)} | {r.get('decide_mean', float('nan')):.1f} | "
-            f"{r.get('cpu_mean', float('nan')):.1f} | "
+            f"{r.get('cpu_mean', float('nan')):.1f} | {r.get('process_cpu_mean', float('nan')):.1f} | "
             f"{r.get('controller_mean', float('nan')):.1f} | {r.get('controller_p95', float('nan')):.1f} | "
             f"{r.get('round_mean', float('nan')):.1f} |"
         )

@@ -86,6 +86,7 @@ class Controller:
         self.round_times: list[float] = []
         self.wait_times: list[float] = []  # per round: waiting for vehicles to arrive and for detectors
         self.cpu_times: list[float] = []  # per round: CPU time of the controller's loop thread
+        self.process_cpu_times: list[float] = []  # per round: CPU time of the whole process (every thread)
         self._stop = asyncio.Event()
         self.takeoff_slots = asyncio.Semaphore(plan.spec.flight.takeoff_at_once)
         self.tasks: set[asyncio.Task] = set()  # every task started with spawn(), until it is done
@@ -320,9 +321,10 @@ class Controller:
             self.gcs.close()
 
     def overhead_ms(self) -> dict:
-        """Per decision round (ms): the policy, the CPU time of the controller's loop thread, the whole
-        round, and the controller's own part of it in wall time (the round minus the time spent waiting
-        for vehicles to arrive and for detector reports)."""
+        """Per decision round (ms): the policy, the CPU time of the controller's loop thread and of the
+        whole process (the loop, the links' reader threads, any worker threads), the whole round, and
+        the controller's own part of it in wall time (the round minus the time spent waiting for
+        vehicles to arrive and for detector reports)."""
         n = min(len(self.round_times), len(self.wait_times))
         if not n:
             return dict(rounds=0)
@@ -332,6 +334,7 @@ class Controller:
             rounds=n,
             decide_mean=round(1000 * float(np.mean(self.decide_times)), 3),
             cpu_mean=round(1000 * float(np.mean(self.cpu_times)), 3),
+            process_cpu_mean=round(1000 * float(np.mean(self.process_cpu_times)), 3),
             round_mean=round(1000 * float(rounds.mean()), 3),
             controller_mean=round(1000 * float(own.mean()), 3),
             controller_p95=round(1000 * float(np.percentile(own, 95)), 3),

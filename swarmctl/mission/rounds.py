@@ -44,7 +44,7 @@ async def search(c: Controller) -> None:
     timing = c.plan.spec.timing
     c.search_started = time.monotonic()
     while True:
-        t0, cpu0 = time.monotonic(), time.thread_time()
+        t0, cpu0, all0 = time.monotonic(), time.thread_time(), time.process_time()
         poll_all([a.exchange for a in c.agents])
         for a in c.agents:
             a.track()
@@ -57,6 +57,7 @@ async def search(c: Controller) -> None:
         moved = await decision_round(c)
         c.round_times.append(time.monotonic() - t0)
         c.cpu_times.append(time.thread_time() - cpu0)
+        c.process_cpu_times.append(time.process_time() - all0)
         if c.view is not None:
             c.view(c)
         # nobody moved (all staying or waiting): do not spin faster than 10 rounds a second
