@@ -387,3 +387,36 @@ def test_bad_bytes_are_counted_and_dropped_without_breaking_the_link():
                 return bad
 
     assert run(scenario()) > 0
+
+
+def test_udp_link_reads_on_the_loop_a_burst_longer_than_a_read_batch_in_order():
+    """A UDP link has no reader thread: its socket is read on the loop, READ_BATCH datagrams at a time.
+    A burst queued while the loop was busy arrives whole and in order, and once the link is closed
+    its socket is no longer watched by the loop."""
+    import socket
+
+    from swarmctl.mavlink.network import READ_BATCH
+
+    burst = 2 * READ_BATCH + 22
+
+    async def scenario():
+        link = await MavlinkLink("udpin:127.0.0.1:0").open()
+        fd = link._transport.sock.fileno()
+        threads = [t for t in our_threads() if t.startswith("mavlink-rx")]
+        seen: list[int] = []
+        link.add_listener(lambda msg: seen.append(msg.custom_mode), ["HEARTBEAT"])
+        tx = MAV.MAVLink(None, srcSystem=7, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+            for i in range(burst):  # all queued before the loop runs again
+                frame = tx.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, MAV.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, i, 0).pack(tx)
+                sender.sendto(frame, ("127.0.0.1", link.local_port))
+            deadline = time.monotonic() + 10
+            while len(seen) < burst and time.monotonic() < deadline:
+                await asyncio.sleep(0.01)
+        await link.close()
+        return threads, seen, asyncio.get_running_loop().remove_reader(fd)
+
+    threads, seen, still_watched = run(scenario())
+    assert threads == []
+    assert seen == list(range(burst))
+    assert still_watched is False

@@ -1,4 +1,5 @@
-"""Byte transports for MAVLink: UDP in/out, TCP client, serial. Blocking, used from one reader thread.
+"""Byte transports for MAVLink: UDP in/out, TCP client, serial. Blocking reads, for a link's reader thread
+(a UDP link reads its socket on the event loop instead: swarmctl.mavlink.network).
 
 `udpin` listens and answers the peers it has heard from (like a radio channel shared by several
 vehicles): vehicles on one link tell messages apart by target_system, so nothing depends on which

@@ -322,7 +322,7 @@ class Controller:
 
     def overhead_ms(self) -> dict:
         """Per decision round (ms): the policy, the CPU time of the controller's loop thread and of the
-        whole process (the loop, the links' reader threads, any worker threads), the whole round, and
+        whole process (the loop, stream links' reader threads, any worker threads), the whole round, and
         the controller's own part of it in wall time (the round minus the time spent waiting for
         vehicles to arrive and for detector reports)."""
         n = min(len(self.round_times), len(self.wait_times))
