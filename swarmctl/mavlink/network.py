@@ -6,13 +6,12 @@ there); a stream link (TCP, serial) has a reader thread that blocks on its port 
 hand the messages to the loop's `_Inbox`, which delivers what every link has handed over meanwhile at
 once (a reader thread's hand-over wakes the loop with one `call_soon_threadsafe`, not one per read).
 UDP links have no thread because a thread per vehicle cost more than the parsing: at 50 vehicles about
-1,300 datagrams a second, each a wake-up of its thread and two hand-overs of the interpreter lock with
-the loop (docs/mavlink.md). A message goes only to the listeners registered for
-its type (or for every message), and batch listeners (the recorder's tap) take the messages of the links
-they listen to a batch at a time (once per hand-over). Everything else (state, waits, command retries, the
-1 Hz heartbeat) runs as coroutines on the loop, and one timer of the loop checks every link for link loss.
-Sending is a non-blocking datagram/serial write under a lock. A slow or silent vehicle only makes its own
-coroutines wait, never the others.
+1,300 datagrams a second, each waking its link's thread (docs/mavlink.md). A message goes only to the
+listeners registered for its type (or for every message), and batch listeners (the recorder's tap) take
+the messages of the links they listen to a batch at a time (once per hand-over). Everything else
+(state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and one timer of
+the loop checks every link for link loss. Sending is a non-blocking datagram/serial write under a lock.
+A slow or silent vehicle only makes its own coroutines wait, never the others.
 
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
