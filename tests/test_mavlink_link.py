@@ -390,9 +390,9 @@ def test_bad_bytes_are_counted_and_dropped_without_breaking_the_link():
 
 
 def test_udp_link_reads_on_the_loop_a_burst_longer_than_a_read_batch_in_order():
-    """A UDP link has no reader thread: its socket is read on the loop, READ_BATCH datagrams at a time.
-    A burst queued while the loop was busy arrives whole and in order, and once the link is closed
-    its socket is no longer watched by the loop."""
+    """A UDP link has no reader thread: its socket is read on the loop, at the inbox's drains, READ_BATCH
+    datagrams at a time. A burst queued while the loop was busy arrives whole and in order, and once
+    the link is closed its socket is no longer read."""
     import socket
 
     from swarmctl.mavlink.network import READ_BATCH
@@ -413,10 +413,19 @@ def test_udp_link_reads_on_the_loop_a_burst_longer_than_a_read_batch_in_order():
             deadline = time.monotonic() + 10
             while len(seen) < burst and time.monotonic() < deadline:
                 await asyncio.sleep(0.01)
+        watched_open = _watched(link, fd)
         await link.close()
-        return threads, seen, asyncio.get_running_loop().remove_reader(fd)
+        return threads, seen, watched_open, _watched(link, fd)
 
-    threads, seen, still_watched = run(scenario())
+    threads, seen, watched_open, watched_closed = run(scenario())
     assert threads == []
     assert seen == list(range(burst))
-    assert still_watched is False
+    assert watched_open and not watched_closed
+
+
+def _watched(link: MavlinkLink, fd: int) -> bool:
+    """`fd` is among the sockets the loop's inbox reads."""
+    from swarmctl.mavlink.network import _inbox
+
+    sockets = _inbox(asyncio.get_running_loop())._sockets
+    return sockets is not None and fd in {key.fd for key in sockets.get_map().values()}

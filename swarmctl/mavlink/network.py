@@ -1,14 +1,16 @@
 """The controller's MAVLink link on pymavlink, for asyncio.
 
 Concurrency model: one asyncio event loop drives every vehicle. A UDP link's socket is read on the loop
-itself (`loop.add_reader`: what is queued, up to READ_BATCH datagrams at a time, parsed with pymavlink
-there); a stream link (TCP, serial) has a reader thread that blocks on its port and parses there. Both
-hand the messages to the loop's `_Inbox`, which delivers what every link has handed over meanwhile at
-once (a reader thread's hand-over wakes the loop with one `call_soon_threadsafe`, not one per read).
-UDP links have no thread because a thread per vehicle cost more than the parsing: at 50 vehicles about
-1,300 datagrams a second, each waking its link's thread (docs/mavlink.md). A message goes only to the
-listeners registered for its type (or for every message), and batch listeners (the recorder's tap) take
-the messages of the links they listen to a batch at a time (once per hand-over). Everything else
+itself: the sockets of all UDP links sit in one selector of the loop's `_Inbox`, the loop watches that
+selector, and each drain of the inbox reads every socket that is ready (up to READ_BATCH datagrams
+each) and parses with pymavlink there; a stream link (TCP, serial) has a reader thread that blocks on
+its port and parses there, handing the messages to the inbox (one `call_soon_threadsafe` per drain,
+not one per read). The inbox delivers what every link has brought at once. UDP links have no thread
+because a thread per vehicle cost more than the parsing: at 50 vehicles about 1,300 datagrams a second,
+each waking its link's thread (docs/mavlink.md); nor a watch of their own, which woke the loop once
+per datagram. A message goes only to the listeners registered for its type (or for every message),
+and batch listeners (the recorder's tap) take the messages of the links they listen to a batch at a
+time (once per drain). Everything else
 (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and one timer of
 the loop checks every link for link loss. Sending is a non-blocking datagram/serial write under a lock.
 A slow or silent vehicle only makes its own coroutines wait, never the others.
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import selectors
 import socket
 import threading
 import time
@@ -50,7 +53,7 @@ def command_name(command: int) -> str:
     return entry.name if entry is not None else f"MAV_CMD {command}"
 
 
-GATHER_S = 0.005  # a loop woken by a reader takes what every reader has handed over this long after
+GATHER_S = 0.005  # a loop woken by a reader (or a UDP socket) takes what has come in this long after
 WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
 READ_BATCH = 64  # datagrams a UDP link reads at a time before the loop's other work gets its turn
 MAX_DATAGRAM = 65535
@@ -63,7 +66,12 @@ class _Inbox:
     then each batch listener once with the messages of all the links it listens to (so the loop is woken
     a few hundred times a second at most, not once per datagram, and the recorder's tap is called once
     per drain, not once per link). And one timer checks every open link's heartbeats every WATCHDOG_S
-    (not a task per link)."""
+    (not a task per link).
+
+    UDP links have no reader: their sockets sit in one selector of the inbox, whose descriptor the loop
+    watches. When a datagram arrives the loop stops watching it and schedules a drain, and the drain
+    first reads every socket that is ready (up to READ_BATCH datagrams each), then delivers, then
+    watches again: the loop wakes once per drain, not once per datagram."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
@@ -72,12 +80,54 @@ class _Inbox:
         self._scheduled = False
         self._links: dict[MavlinkLink, None] = {}  # open links, in the order they were opened
         self._watchdog: asyncio.TimerHandle | None = None
+        self._sockets: selectors.BaseSelector | None = None  # the UDP links' sockets (data: the link)
+        self._watching = False  # the loop watches self._sockets
 
-    def put(self, link: MavlinkLink, msgs: list, on_loop: bool = False) -> None:
-        """From a reader thread (or, with on_loop, from the loop's own thread). RuntimeError when the
-        loop is closed."""
+    def read(self, link: MavlinkLink, sock: socket.socket) -> bool:
+        """Read `sock` (a UDP link's) at each drain; False where this platform's selectors cannot be
+        watched by the loop (the link then keeps a reader thread)."""
+        if self._sockets is None:
+            sockets = selectors.DefaultSelector()
+            if not hasattr(sockets, "fileno"):  # select() only: nothing the loop could watch
+                sockets.close()
+                return False
+            self._sockets = sockets
+        self._sockets.register(sock, selectors.EVENT_READ, link)
+        self._watch()
+        return True
+
+    def unread(self, sock: socket.socket) -> None:
+        if self._sockets is None:
+            return
+        self._sockets.unregister(sock)
+        if not self._sockets.get_map():
+            self._unwatch()
+            self._sockets.close()
+            self._sockets = None
+
+    def _watch(self) -> None:
+        loop = self._loop()
+        if not self._watching and self._sockets is not None and loop is not None and not loop.is_closed():
+            loop.add_reader(self._sockets.fileno(), self._readable)
+            self._watching = True
+
+    def _unwatch(self) -> None:
+        loop = self._loop()
+        if self._watching and self._sockets is not None and loop is not None and not loop.is_closed():
+            loop.remove_reader(self._sockets.fileno())
+        self._watching = False
+
+    def _readable(self) -> None:
+        """On the loop: a UDP link has datagrams; read at the next drain, unwatched until then."""
+        self._unwatch()
+        self.put(None, [], on_loop=True)
+
+    def put(self, link: MavlinkLink | None, msgs: list, on_loop: bool = False) -> None:
+        """From a reader thread (or, with on_loop, from the loop's own thread; link None: only a drain
+        scheduled). RuntimeError when the loop is closed."""
         with self._lock:
-            self._items.append((link, msgs))
+            if link is not None:
+                self._items.append((link, msgs))
             if self._scheduled:
                 return
             self._scheduled = True
@@ -95,9 +145,16 @@ class _Inbox:
             raise
 
     def _drain(self) -> None:
+        if self._sockets is not None:
+            ready = [key.data for key, _ in self._sockets.select(0)]
+            self._watch()
+            read = [(link, msgs) for link in ready if (msgs := link._read_datagrams())]
+        else:
+            read = []
         with self._lock:
             items, self._items = self._items, []
             self._scheduled = False
+        items += read
         batches: dict[MavlinkLink, list] = {}
         for link, msgs in items:
             if link in batches:
@@ -234,7 +291,7 @@ class MavlinkLink:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None  # a stream link's reader
-        self._reading: int | None = None  # a UDP link's socket, read on the loop (_on_readable)
+        self._reading: socket.socket | None = None  # a UDP link's socket, read by the inbox's drains
         self._tasks: list[asyncio.Task] = []
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -252,9 +309,8 @@ class MavlinkLink:
         if self.signing_key is not None:
             unsigned = (lambda _mav, _mid: True) if self.accept_unsigned else _UNSIGNED_OK
             setup_signing(self.mav, self.signing_key, accept_unsigned=unsigned)
-        if isinstance(self._transport, UdpTransport):
-            self._loop.add_reader(self._transport.sock.fileno(), self._on_readable)
-            self._reading = self._transport.sock.fileno()
+        if isinstance(self._transport, UdpTransport) and self._inbox.read(self, self._transport.sock):
+            self._reading = self._transport.sock
         else:
             self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
             self._thread.start()
@@ -269,7 +325,7 @@ class MavlinkLink:
             self._inbox.unwatch(self)
         self._stop.set()
         if self._reading is not None:
-            self._loop.remove_reader(self._reading)
+            self._inbox.unread(self._reading)
             self._reading = None
         if self._thread is not None:
             await asyncio.get_running_loop().run_in_executor(None, self._thread.join, 2.0)
@@ -316,14 +372,14 @@ class MavlinkLink:
                 except RuntimeError:  # loop closed while stopping
                     return
 
-    def _on_readable(self) -> None:
-        """A UDP link's socket is readable (on the loop): the datagrams queued, up to READ_BATCH so that
-        a flooded link cannot hold up the loop, parsed and handed to the inbox; a sender is answered
-        once a datagram of it held a valid frame."""
+    def _read_datagrams(self) -> list:
+        """A UDP link's queued datagrams (on the loop, at a drain of the inbox), up to READ_BATCH so that
+        a flooded link cannot hold up the loop (the rest waits for the next drain), parsed; a sender is
+        answered once a datagram of it held a valid frame."""
         transport = self._transport
-        if self._stop.is_set() or not isinstance(transport, UdpTransport) or self._inbox is None:
-            return
         msgs: list = []
+        if self._stop.is_set() or not isinstance(transport, UdpTransport):
+            return msgs
         for _ in range(READ_BATCH):
             try:
                 data, source = transport.sock.recvfrom(MAX_DATAGRAM, socket.MSG_DONTWAIT)
@@ -337,8 +393,7 @@ class MavlinkLink:
             if any(valid_frame(m) for m in parsed):
                 transport.accept_source()  # udpin: answer this address from now on
             msgs += parsed
-        if msgs:
-            self._inbox.put(self, msgs, on_loop=True)
+        return msgs
 
     def _dispatch(self, msgs: list) -> None:
         """Messages of this link to their listeners, then to its batch listeners."""
