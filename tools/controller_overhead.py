@@ -5,13 +5,13 @@ with the given policy in ground mode (one controller flies every vehicle; the ag
 on the in-process bus, swarmctl.knowledge.bus, and write their TUNNEL frames on their own vehicle's
 link), recording it as fly and demo do (the running summary.json included), and report per decision
 round the policy time, the CPU time of the controller's loop thread and of its whole process (the loop
-with the links' reader threads: with --same-process the mocks' threads too), the whole round, and the
-controller's own part (the round minus the time spent waiting for vehicles to reach their cells and for
-detector reports). The mocks run in a child process
-(or, with --same-process, in threads next to the controller, where they compete with it for the
-interpreter lock); on a small machine they still compete for the CPU, so the numbers are upper bounds.
-With --own-cpu the mocks' process runs on the last CPU and the controller (its loop and its link
-threads) on the others, as real vehicles fly their own computers; their work then no longer shares a
+with any reader threads of stream links: with --same-process the mocks' thread too), the whole round,
+and the controller's own part (the round minus the time spent waiting for vehicles to reach their cells
+and for detector reports). The mocks run in a child process, all in one thread (swarmctl.sim.autopilot's
+MockRunner), or, with --same-process, in that thread next to the controller, where it competes with the
+controller for the interpreter lock; on a small machine they still compete for the CPU, so the numbers
+are upper bounds. With --own-cpu the mocks' process runs on the last CPU and the controller on the
+others, as real vehicles fly their own computers; their work then no longer shares a
 core, and its caches, with the controller's.
 
     python tools/controller_overhead.py [--sizes 3 12 50] [--policy frontier] [--search 20] [--runs 3] [--own-cpu]

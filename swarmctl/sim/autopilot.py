@@ -20,7 +20,9 @@ Time: physics (speeds, climb, battery, the boot) runs `speedup` times faster tha
 timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations) stays in
 wall-clock seconds, because the controller on the other side runs in real time.
 
-It runs in its own thread: ``with MockAutopilot(sysid=1, connect="udpout:127.0.0.1:14550") as v: ...``.
+It runs in its own thread: ``with MockAutopilot(sysid=1, connect="udpout:127.0.0.1:14550") as v: ...``;
+or, on UDP, in a `MockRunner`'s thread shared with other mocks (``start(runner)``: SimSwarm flies its
+mocks so, one thread for all of them instead of one each).
 Hooks for later simulation layers: `tunnel_handler(mock, msg)` sees every TUNNEL message addressed to
 the vehicle, `step_hooks` are called as hook(mock, dt_sim) after each physics step, and
 `send_message(msg)` sends any message built with ``mock.mav.<name>_encode(...)``.
@@ -33,6 +35,7 @@ import itertools
 import logging
 import math
 import random
+import selectors
 import threading
 import time
 from collections import deque
@@ -43,7 +46,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import distance_m, from_deg_e7, ne_m, offset_m, to_deg_e7
-from swarmctl.mavlink.transport import Transport, open_transport, parse_bytes, valid_frame
+from swarmctl.mavlink.transport import Transport, UdpTransport, open_transport, parse_bytes, valid_frame
 from swarmctl.signing import setup_signing
 from swarmctl.sim.boot import Boot
 from swarmctl.sim.fence import FENCE, MockFence
@@ -183,7 +186,9 @@ class MockAutopilot:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._runner: MockRunner | None = None
         self._transport: Transport | None = None
+        self._last_step = 0.0
         self._outbox = _Outbox()
         self.mav: Any = None
         self._delayed: list[tuple[float, int, str, Any]] = []
@@ -217,7 +222,8 @@ class MockAutopilot:
         self.next_due: dict[int, float] = {}
         self.next_heartbeat = now
 
-    def start(self) -> MockAutopilot:
+    def start(self, runner: MockRunner | None = None) -> MockAutopilot:
+        """Open the connection and run: in a thread of its own, or (a UDP connection) in `runner`'s."""
         if self.connect.startswith(TCPIN):
             server = Serial0Server(*parse_tcpin(self.connect))
             server.on_connect = self._client_connected
@@ -229,12 +235,19 @@ class MockAutopilot:
         if self.signing_key is not None:
             setup_signing(self.mav, self.signing_key, accept_unsigned={MAV.MAVLINK_MSG_ID_RADIO_STATUS})
         self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}", daemon=True)
-        self._thread.start()
+        self._last_step = time.monotonic()
+        if runner is not None and isinstance(self._transport, UdpTransport):
+            self._runner = runner.add(self)
+        else:
+            self._thread = threading.Thread(target=self._run, name=f"mock-autopilot-{self.sysid}", daemon=True)
+            self._thread.start()
         return self
 
     def stop(self) -> None:
         self._stop.set()
+        if self._runner is not None:
+            self._runner.remove(self)
+            self._runner = None
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
@@ -381,42 +394,51 @@ class MockAutopilot:
 
     def _run(self) -> None:
         assert self._transport is not None
-        last_step = time.monotonic()
         while not self._stop.is_set():
             try:
                 data = self._transport.read(self.tick / 2)
             except (OSError, ValueError):
                 data = b""
             now = time.monotonic()
-            if data and now >= self._down_until and self.rng.random() >= self.packet_loss:
-                msgs = parse_bytes(self.mav, data, self._transport.datagrams)
-                if any(valid_frame(m) for m in msgs):
-                    self._transport.accept_source()  # udpin: answer this address from now on
-                for msg in msgs:
-                    if self.latency > 0:
-                        heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))
-                    else:
-                        self._handle_safely(msg)
-            while self._delayed and self._delayed[0][0] <= now:
-                _, _, kind, item = heapq.heappop(self._delayed)
-                if kind == "in":
-                    self._handle_safely(item)
+            if data:
+                self._receive(data, now)
+            self._advance(now)
+
+    def _receive(self, data: bytes, now: float) -> None:
+        """One read's bytes (a datagram on UDP), subject to the blackout and packet-loss faults."""
+        if now >= self._down_until and self.rng.random() >= self.packet_loss:
+            msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+            if any(valid_frame(m) for m in msgs):
+                self._transport.accept_source()  # udpin: answer this address from now on
+            for msg in msgs:
+                if self.latency > 0:
+                    heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))
                 else:
-                    self._write(item)
-            if self._reboot_pending and now >= self._down_until:
+                    self._handle_safely(msg)
+
+    def _advance(self, now: float) -> None:
+        """What is due at `now`: delayed messages, a pending reboot, the physics step (every `tick`) and
+        the telemetry it sends."""
+        while self._delayed and self._delayed[0][0] <= now:
+            _, _, kind, item = heapq.heappop(self._delayed)
+            if kind == "in":
+                self._handle_safely(item)
+            else:
+                self._write(item)
+        if self._reboot_pending and now >= self._down_until:
+            with self._lock:
+                self._reboot_pending = False
+                self._boot()
+            self._last_step = now
+        if now - self._last_step >= self.tick:
+            dt = now - self._last_step
+            self._last_step = now
+            if not self._reboot_pending:  # a blackout cuts the radio, not the flight
                 with self._lock:
-                    self._reboot_pending = False
-                    self._boot()
-                last_step = now
-            if now - last_step >= self.tick:
-                dt = now - last_step
-                last_step = now
-                if not self._reboot_pending:  # a blackout cuts the radio, not the flight
-                    with self._lock:
-                        self._step(dt * self.speedup, now)
-                    for hook in list(self.step_hooks):
-                        hook(self, dt * self.speedup)
-                    self._emit(now)
+                    self._step(dt * self.speedup, now)
+                for hook in list(self.step_hooks):
+                    hook(self, dt * self.speedup)
+                self._emit(now)
 
     def _handle_safely(self, msg: Any) -> None:
         try:
@@ -1044,3 +1066,80 @@ class MockAutopilot:
                         if attr == attribute:
                             self.params[other] = getattr(self, attr) / sc
                 value(name)
+
+
+class MockRunner:
+    """One thread for many mock vehicles on UDP (as 50 vehicles' threads each waking a hundred times a
+    second cost a small machine more than the mocks' work): it waits on all their sockets at once, hands
+    each datagram to its mock, and advances every mock at least every half tick, as a mock's own
+    thread does. ``with MockRunner() as runner: mock.start(runner)``."""
+
+    def __init__(self) -> None:
+        self._sockets = selectors.DefaultSelector()
+        self._mocks: dict[MockAutopilot, None] = {}
+        self._lock = threading.RLock()  # held while the mocks are served: remove() waits for it
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def add(self, mock: MockAutopilot) -> MockRunner:
+        assert isinstance(mock._transport, UdpTransport), "a MockRunner serves UDP mocks"
+        with self._lock:
+            self._sockets.register(mock._transport.sock, selectors.EVENT_READ, mock)
+            self._mocks[mock] = None
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="mock-autopilots", daemon=True)
+            self._thread.start()
+        return self
+
+    def remove(self, mock: MockAutopilot) -> None:
+        with self._lock:
+            if self._mocks.pop(mock, 1) is None:
+                self._sockets.unregister(mock._transport.sock)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(5.0)
+            self._thread = None
+        self._sockets.close()
+
+    def __enter__(self) -> MockRunner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            with self._lock:
+                mocks = list(self._mocks)
+            if not mocks:
+                self._stop.wait(0.01)
+                continue
+            ready = self._sockets.select(min(m.tick for m in mocks) / 2)
+            now = time.monotonic()
+            with self._lock:
+                for key, _ in ready:
+                    if key.data in self._mocks:
+                        self._serve(key.data, self._read, now)
+                for mock in list(self._mocks):
+                    self._serve(mock, MockAutopilot._advance, now)
+
+    def _serve(self, mock: MockAutopilot, work: Callable[[MockAutopilot, float], None], now: float) -> None:
+        try:
+            work(mock, now)
+        except Exception:  # one mock's failure stops that mock, as it would stop its own thread
+            log.exception("mock vehicle %d stopped", mock.sysid)
+            self.remove(mock)
+
+    @staticmethod
+    def _read(mock: MockAutopilot, now: float) -> None:
+        """What the mock's socket holds, up to 64 datagrams (the rest at the next turn)."""
+        for _ in range(64):
+            try:
+                data = mock._transport.read(0)
+            except (OSError, ValueError):
+                return
+            if not data:
+                return
+            mock._receive(data, now)

@@ -70,7 +70,7 @@ class _Upload:
 
 
 class MockFence:
-    """One mock vehicle's geofence (the mock calls it with its lock held, from its own thread)."""
+    """One mock vehicle's geofence (the mock calls it with its lock held, from the thread it runs in)."""
 
     def __init__(self, mock: MockAutopilot):
         self.mock = mock

@@ -22,7 +22,7 @@ from swarmctl.mavlink.autopilots.base import autopilot_named
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.plan import MissionPlan, make_plan
 from swarmctl.mission.spec import DEMO_SETTINGS, ON_LINK, MissionSpec, VehicleSpec
-from swarmctl.sim.autopilot import MockAutopilot
+from swarmctl.sim.autopilot import MockAutopilot, MockRunner
 from swarmctl.sim.detector import FOV_CELLS, SimDetector
 from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
@@ -102,6 +102,7 @@ class SimSwarm:
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
     radio: Radio | None = None
+    runner: MockRunner | None = None  # the one thread the UDP mocks run in
     _fence: list[tuple[float, float]] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
@@ -112,6 +113,7 @@ class SimSwarm:
         self.autopilots = list(self.autopilots or ["ardupilot"] * self.uavs)
 
     def start(self) -> SimSwarm:
+        self.runner = MockRunner()
         try:
             for i, cell in enumerate(self.starts):
                 lat, lon = self.grid.cell_to_latlon(*cell)
@@ -150,7 +152,7 @@ class SimSwarm:
                     )
                     det.attach(mock)
                     self.detectors.append(det)
-                mock.start()
+                mock.start(self.runner)
                 self.mocks.append(mock)
                 if connection is None:
                     connection = f"udpout:127.0.0.1:{mock.local_port}"
@@ -207,6 +209,8 @@ class SimSwarm:
     def stop(self) -> None:
         for m in self.mocks:
             m.stop()
+        if self.runner is not None:
+            self.runner.stop()
         for d in self.detectors:
             d.close()
         if self.radio is not None:
