@@ -148,20 +148,24 @@ def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
     }
 
 
+def cpu_model() -> str:
+    """The processor's name (Linux: /proc/cpuinfo's model name), else what platform knows of it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def machine(threads: int) -> dict:
     """What the figures were measured on."""
     import torch
 
     from swarmctl.policy.forward import onnx_available
 
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    model = cpu_model()
     ort = None
     if onnx_available():
         import onnxruntime

@@ -33,7 +33,6 @@ import argparse
 import asyncio
 import json
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -42,6 +41,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from swarmctl.bench import cpu_model  # noqa: E402
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
@@ -206,7 +206,7 @@ def main() -> None:
         rows.append(summarise(runs))
     lines = [
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
-        f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), mocks in "
+        f"{os.cpu_count()} CPUs ({cpu_model()}), mocks in "
         f"{'the same' if args.same_process else 'a child'} process" + (" on their own CPU" if args.own_cpu else ""),
         f"machine reference (a fixed dict and small-numpy workload, alone, before the runs): {reference:.1f} ms",
         "",

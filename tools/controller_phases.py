@@ -17,7 +17,6 @@ import argparse
 import functools
 import importlib
 import os
-import platform
 import sys
 import threading
 import time
@@ -129,7 +128,7 @@ def main() -> None:
     n = max(r.get("rounds", 0), 1)
     print(
         f"{args.vehicles} vehicles, policy {args.policy}, {r.get('rounds', 0)} search rounds, "
-        f"{os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), load {load:.2f} before; "
+        f"{os.cpu_count()} CPUs ({controller_overhead.cpu_model()}), load {load:.2f} before; "
         f"controller CPU {r.get('cpu_mean', float('nan')):.1f} ms a round (with the wrappers)\n"
     )
     print("| phase (inclusive; indented: part of the one above) | CPU ms a round | calls a round |")
