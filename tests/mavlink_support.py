@@ -37,5 +37,13 @@ def run(coro: Any, timeout: float = 60.0) -> Any:
     return asyncio.run(bounded())
 
 
+async def until(condition: Any, timeout: float = 5.0) -> None:
+    """Wait on the loop until condition() is true; fail after `timeout` seconds."""
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not condition():
+        assert asyncio.get_running_loop().time() < deadline, "timed out"
+        await asyncio.sleep(0.01)
+
+
 def our_threads() -> list[str]:
     return [t.name for t in threading.enumerate() if t.name.startswith(("mock-autopilot", "mavlink-rx"))]

@@ -3,13 +3,12 @@ order and each once (the loop's inbox gathers what several links' readers hand o
 
 from __future__ import annotations
 
-import asyncio
 import socket
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.network import MAV, MavlinkLink
-from tests.mavlink_support import our_threads, run
+from tests.mavlink_support import our_threads, run, until
 
 
 class _Frames:
@@ -32,13 +31,6 @@ def frames(sysid: int, count: int) -> list[bytes]:
         else:
             mav.send(mav.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, MAV.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, 4, 4))
     return out.frames
-
-
-async def until(condition, timeout: float = 5.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not condition():
-        assert asyncio.get_running_loop().time() < deadline, "timed out"
-        await asyncio.sleep(0.01)
 
 
 def test_listeners_get_their_types_and_batches_hold_every_frame_once_in_order():

@@ -3,25 +3,17 @@ stopped, or one whose step fails, leaves the others flying."""
 
 from __future__ import annotations
 
-import asyncio
 import threading
 import time
 
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.sim.autopilot import MockAutopilot, MockRunner
-from tests.mavlink_support import FAST, HOME, our_threads, run
+from tests.mavlink_support import FAST, HOME, our_threads, run, until
 
 
 def _heard(link: MavlinkLink, sysid: int, since: float) -> bool:
     peer = link.peers.get(sysid)
     return peer is not None and peer.received_at.get("HEARTBEAT", 0.0) > since
-
-
-async def _until(condition, timeout: float = 10.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not condition():
-        assert asyncio.get_running_loop().time() < deadline, "timed out"
-        await asyncio.sleep(0.02)
 
 
 def test_mocks_in_one_runner_all_answer_and_one_failing_or_stopped_leaves_the_rest():
@@ -34,13 +26,13 @@ def test_mocks_in_one_runner_all_answer_and_one_failing_or_stopped_leaves_the_re
     async def scenario():
         links = [await MavlinkLink(f"udpout:127.0.0.1:{m.local_port}").open() for m in mocks]
         try:
-            await _until(lambda: all(_heard(link, m.sysid, 0.0) for link, m in zip(links, mocks)))
+            await until(lambda: all(_heard(link, m.sysid, 0.0) for link, m in zip(links, mocks)), timeout=10.0)
             threads = [t for t in our_threads() if t.startswith("mock-autopilot")]
             mocks[1].stop()
             mocks[2].step_hooks.append(broken)
-            await _until(lambda: mocks[2] not in runner._mocks)
+            await until(lambda: mocks[2] not in runner._mocks)
             after = time.monotonic()
-            await _until(lambda: _heard(links[0], 1, after))
+            await until(lambda: _heard(links[0], 1, after), timeout=10.0)
             silent = [not _heard(links[i], i + 1, after) for i in (1, 2)]
             return threads, silent
         finally:
