@@ -423,6 +423,52 @@ def test_udp_link_reads_on_the_loop_a_burst_longer_than_a_read_batch_in_order():
     assert watched_open and not watched_closed
 
 
+def test_udp_links_read_in_passes_without_empty_reads(monkeypatch):
+    """Datagrams queued on several UDP links while the loop was busy reach each link's listeners whole
+    and in order, read one per ready socket a pass: a drain never calls recvfrom on a socket that has
+    nothing (the selector says which have more), and a link closed with datagrams still queued is not
+    read again."""
+    import socket
+
+    empty_reads = []
+    read_one = MavlinkLink._read_datagram
+
+    def counted(self):
+        msgs = read_one(self)
+        if msgs is None and not self._stop.is_set():
+            empty_reads.append(self)
+        return msgs
+
+    monkeypatch.setattr(MavlinkLink, "_read_datagram", counted)
+    bursts = (5, 1, 9)
+
+    async def scenario():
+        links = [await MavlinkLink("udpin:127.0.0.1:0").open() for _ in bursts]
+        seen: list[list[int]] = [[] for _ in bursts]
+        for link, got in zip(links, seen):
+            link.add_listener(lambda msg, got=got: got.append(msg.custom_mode), ["HEARTBEAT"])
+        tx = MAV.MAVLink(None, srcSystem=7, srcComponent=1)
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sender:
+            for i in range(max(bursts)):  # interleaved over the links, all queued before the loop runs again
+                for link, n in zip(links, bursts):
+                    if i < n:
+                        frame = tx.heartbeat_encode(MAV.MAV_TYPE_QUADROTOR, MAV.MAV_AUTOPILOT_ARDUPILOTMEGA, 0, i, 0)
+                        sender.sendto(frame.pack(tx), ("127.0.0.1", link.local_port))
+            deadline = time.monotonic() + 10
+            while [len(got) for got in seen] != list(bursts) and time.monotonic() < deadline:
+                await asyncio.sleep(0.01)
+            closing = links.pop()
+            sender.sendto(frame.pack(tx), ("127.0.0.1", closing.local_port))
+            await closing.close()  # its datagram stays queued in a socket no longer read
+            for link in links:
+                await link.close()
+        return seen
+
+    seen = run(scenario())
+    assert seen == [list(range(n)) for n in bursts]
+    assert empty_reads == []
+
+
 def _watched(link: MavlinkLink, fd: int) -> bool:
     """`fd` is among the sockets the loop's inbox reads."""
     from swarmctl.mavlink.network import _inbox

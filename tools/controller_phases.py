@@ -47,6 +47,8 @@ PHASES = (
     ("swarmctl.mavlink.transport", "UdpTransport.write", "link writes (knowledge and commands)"),
     ("swarmctl.mavlink.network", "MavlinkLink.send", "MAVLink commands packed and sent"),
     ("swarmctl.mavlink.network", "_Inbox._drain", "telemetry drains (whole)"),
+    ("swarmctl.mavlink.network", "_Inbox._read_ready", "  reads (recvfrom and parsing)"),
+    ("swarmctl.mavlink.network", "parse_bytes", "    parsed (pymavlink)"),
     ("swarmctl.mavlink.network", "MavlinkLink._deliver", "  listeners"),
     ("swarmctl.mavlink.autopilots.ardupilot", "ArduPilotVehicle._on_position", "    position reports"),
     ("swarmctl.mission.detector", "SensorFeed.on_tunnel", "    detector reports"),

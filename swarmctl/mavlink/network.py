@@ -2,15 +2,15 @@
 
 Concurrency model: one asyncio event loop drives every vehicle. A UDP link's socket is read on the loop
 itself: the sockets of all UDP links sit in one selector of the loop's `_Inbox`, the loop watches that
-selector, and each drain of the inbox reads every socket that is ready (up to READ_BATCH datagrams
-each) and parses with pymavlink there; a stream link (TCP, serial) has a reader thread that blocks on
-its port and parses there, handing the messages to the inbox (one `call_soon_threadsafe` per drain,
-not one per read). The inbox delivers what every link has brought at once. UDP links have no thread
-because a thread per vehicle cost more than the parsing: at 50 vehicles about 1,300 datagrams a second,
-each waking its link's thread (docs/mavlink.md); nor a watch of their own, which woke the loop once
-per datagram. A message goes only to the listeners registered for its type (or for every message),
-and batch listeners (the recorder's tap) take the messages of the links they listen to a batch at a
-time (once per drain). Everything else
+selector, and each drain of the inbox reads every socket that is ready (one datagram from each ready
+socket a pass, passes until none is, up to READ_BATCH datagrams each) and parses with pymavlink there;
+a stream link (TCP, serial) has a reader thread that blocks on its port and parses there, handing the
+messages to the inbox (one `call_soon_threadsafe` per drain, not one per read). The inbox delivers what
+every link has brought at once. UDP links have no thread because a thread per vehicle cost more than
+the parsing: at 50 vehicles about 1,300 datagrams a second, each waking its link's thread
+(docs/mavlink.md); nor a watch of their own, which woke the loop once per datagram. A message goes only
+to the listeners registered for its type (or for every message), and batch listeners (the recorder's
+tap) take the messages of the links they listen to a batch at a time (once per drain). Everything else
 (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and one timer of
 the loop checks every link for link loss. Sending is a non-blocking datagram/serial write under a lock.
 A slow or silent vehicle only makes its own coroutines wait, never the others.
@@ -55,7 +55,7 @@ def command_name(command: int) -> str:
 
 GATHER_S = 0.005  # a loop woken by a reader (or a UDP socket) takes what has come in this long after
 WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
-READ_BATCH = 64  # datagrams a UDP link reads at a time before the loop's other work gets its turn
+READ_BATCH = 64  # datagrams a UDP link reads at most in one drain before the loop's other work gets its turn
 MAX_DATAGRAM = 65535
 
 
@@ -70,7 +70,7 @@ class _Inbox:
 
     UDP links have no reader: their sockets sit in one selector of the inbox, whose descriptor the loop
     watches. When a datagram arrives the loop stops watching it and schedules a drain, and the drain
-    first reads every socket that is ready (up to READ_BATCH datagrams each), then delivers, then
+    first reads every socket that is ready (up to READ_BATCH datagrams each: _read_ready), then delivers, then
     watches again: the loop wakes once per drain, not once per datagram."""
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
@@ -146,9 +146,8 @@ class _Inbox:
 
     def _drain(self) -> None:
         if self._sockets is not None:
-            ready = [key.data for key, _ in self._sockets.select(0)]
+            read = self._read_ready()
             self._watch()
-            read = [(link, msgs) for link in ready if (msgs := link._read_datagrams())]
         else:
             read = []
         with self._lock:
@@ -171,6 +170,30 @@ class _Inbox:
                     else:
                         shared[cb] = list(accepted)
         _call_batch_listeners(shared)
+
+    def _read_ready(self) -> list[tuple[MavlinkLink, list]]:
+        """The ready UDP sockets' datagrams, parsed, per link in their order: in passes of one datagram
+        from each socket the selector finds ready, until none is, so no read comes back empty (a failed
+        recvfrom cost more than the datagram's parse in a 50-vehicle flight); at most READ_BATCH passes,
+        so a flooded link cannot hold up the loop (the rest waits for the next drain)."""
+        assert self._sockets is not None
+        got: dict[MavlinkLink, list] = {}
+        stopped: set[MavlinkLink] = set()  # closing: their sockets may still read as ready
+        select = self._sockets.select
+        for _ in range(READ_BATCH):
+            ready = [key.data for key, _ in select(0)]
+            if not ready or stopped.issuperset(ready):
+                break
+            for link in ready:
+                msgs = link._read_datagram()
+                if msgs is None:
+                    stopped.add(link)
+                elif msgs:
+                    if link in got:
+                        got[link] += msgs
+                    else:
+                        got[link] = msgs
+        return list(got.items())
 
     def watch(self, link: MavlinkLink) -> None:
         self._links[link] = None
@@ -372,28 +395,25 @@ class MavlinkLink:
                 except RuntimeError:  # loop closed while stopping
                     return
 
-    def _read_datagrams(self) -> list:
-        """A UDP link's queued datagrams (on the loop, at a drain of the inbox), up to READ_BATCH so that
-        a flooded link cannot hold up the loop (the rest waits for the next drain), parsed; a sender is
-        answered once a datagram of it held a valid frame."""
+    def _read_datagram(self) -> list | None:
+        """One queued datagram of a UDP link (on the loop, at a drain of the inbox: _Inbox._read_ready),
+        parsed; None when the link is closing or has none after all. A sender is answered once a datagram
+        of it held a valid frame."""
         transport = self._transport
-        msgs: list = []
         if self._stop.is_set() or not isinstance(transport, UdpTransport):
-            return msgs
-        for _ in range(READ_BATCH):
-            try:
-                data, source = transport.sock.recvfrom(MAX_DATAGRAM, socket.MSG_DONTWAIT)
-            except (BlockingIOError, InterruptedError):
-                break
-            except OSError:  # an ICMP error of an earlier send (a peer gone away): link loss, seen by heartbeats
-                continue
-            transport.last_source = source
-            with self._lock:
-                parsed = parse_bytes(self.mav, data, True)
-            if any(valid_frame(m) for m in parsed):
-                transport.accept_source()  # udpin: answer this address from now on
-            msgs += parsed
-        return msgs
+            return None
+        try:
+            data, source = transport.sock.recvfrom(MAX_DATAGRAM, socket.MSG_DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError:  # an ICMP error of an earlier send (a peer gone away): link loss, seen by heartbeats
+            return []
+        transport.last_source = source
+        with self._lock:
+            parsed = parse_bytes(self.mav, data, True)
+        if transport.listen and any(valid_frame(m) for m in parsed):
+            transport.accept_source()  # udpin: answer this address from now on
+        return parsed
 
     def _dispatch(self, msgs: list) -> None:
         """Messages of this link to their listeners, then to its batch listeners."""
