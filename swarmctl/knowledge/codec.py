@@ -366,8 +366,9 @@ class KnowledgeCodec:
         idx = rec["cell"] & 0x7FFF
         if idx.size and int(idx.max()) >= self.width * self.height:
             return self._reject("cell", "delta cell outside the grid")
-        cells = np.stack([idx // self.height, idx % self.height], axis=1).astype(np.int64)
-        return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), (rec["cell"] >> 15).astype(bool))
+        cells = np.empty((len(idx), 2), dtype=np.int64)
+        np.divmod(idx, self.height, out=(cells[:, 0], cells[:, 1]))
+        return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), rec["cell"] >= 0x8000)
 
     def _decode_detection(self, body: bytes, sender, step, cell, on_target) -> Detection | None:
         if not body or body[0] == 0 or body[0] > MAX_DETECTIONS or len(body) != 1 + 2 * body[0]:
