@@ -5,8 +5,9 @@ Every time is the median of five rounds (each round at least `seconds` / 5), in 
 measuring thread (`time.thread_time`): what the work costs, not how long it waited for a core, so a
 figure measured on a busy machine is the one an idle machine would give, less what the other work
 costs through the shared caches. The FLOP rate is that of a 1,024 x 1,024 float32 matmul on the same
-threads and clock, measured in the same run, so the ratios hold for the machine's state during the
-run; the load average before and after is reported beside them. With more than one thread the
+threads and clock, measured in the same run (in rounds alternating with the decision it is set
+against, and just before and after the training), so the ratios hold for the machine's state while
+their figures were measured; the load average before and after is reported beside them. With more than one thread the
 other threads' CPU time is not counted: use `--threads 1` (the default) for the ratios.
 """
 
@@ -94,6 +95,18 @@ def decision_seconds(policy, batch_episodes: int, seconds: float) -> float:
     return statistics.median(rounds) / (batch_episodes * env.uavs)
 
 
+def decision_and_matmul(policy, seconds: float) -> tuple[float, float]:
+    """(matmul FLOP/s, decision_seconds at batch 1), measured in ROUNDS alternating pairs of rounds,
+    each figure the median of its rounds: the machine's speed drifts (the matmul rate of a 2-core AMD
+    EPYC moved between 67 and 97 GFLOP/s from one run to the next, a minute apart), so the decision
+    and the limit it is set against come from the same stretch of time."""
+    rates, decisions = [], []
+    for _ in range(ROUNDS):
+        rates.append(matmul_flops_per_s(seconds / ROUNDS))
+        decisions.append(decision_seconds(policy, 1, seconds / ROUNDS))
+    return statistics.median(rates), statistics.median(decisions)
+
+
 def ddql_policy(tmp: Path, options: str = ""):
     """`ddql:PATH[options]` on an untrained network of the paper's architecture (weights do not
     change the cost)."""
@@ -114,11 +127,12 @@ def forward_seconds(policy, rows: int, seconds: float) -> float:
     return _median_seconds(lambda: policy.forward(obs), seconds) / rows
 
 
-def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
+def training_figures(threads: int, seconds: float) -> dict:
     """Samples per CPU second of the training loop (2 UAVs, 8 parallel episodes, batch 64, one gradient
     step per joint step; per wall second beside it) and the ceiling the FLOPs allow: per sample, one forward to act plus
     (batch / samples per joint step) x (online forward on o and o', target forward on o', and a
-    backward counted as two forwards)."""
+    backward counted as two forwards), at the mean of the matmul rates measured just before and just
+    after the training (the machine's speed drifts: decision_and_matmul)."""
     from swarmctl.learn.ddql import TrainConfig, train
     from swarmctl.policy.qnet import forward_flops
 
@@ -134,12 +148,15 @@ def training_figures(flops_per_s: float, threads: int, seconds: float) -> dict:
         eval_steps=2,
         threads=threads,
     )
+    before = matmul_flops_per_s(seconds / 2)
     with tempfile.TemporaryDirectory() as tmp:
         meta = train(world, cfg, seed=0, out=Path(tmp) / "bench.pt", progress=False)
+    flops_per_s = (before + matmul_flops_per_s(seconds / 2)) / 2
     per_step = cfg.parallel_envs * world.uavs
     flops = forward_flops(world.window) * (1 + cfg.updates_per_step * cfg.batch_size / per_step * 5)
     ceiling = flops_per_s / flops
     return {
+        "train_matmul_gflop_per_s": flops_per_s / 1e9,
         "train_samples_per_s": meta["train_samples_per_cpu_s"],  # per CPU second, as every figure here
         "train_samples_per_wall_s": meta["train_samples_per_s"],
         "train_flop_ceiling_samples_per_s": ceiling,
@@ -193,14 +210,14 @@ def run_bench(seconds: float = 2.0, threads: int = 1, train: bool = True) -> dic
     m20 = WorldConfig()
     m50 = WorldConfig(map_size=50, uavs=10, targets=16, clusters=4, obstacles=0.1)
     out: dict = {"machine": machine(threads)}
-    rate = matmul_flops_per_s(seconds)
-    out["matmul_gflop_per_s"] = rate / 1e9
-    out["qnet_flop_limit_ms_batch1"] = 1000.0 * forward_flops(m20.window) / rate
     with tempfile.TemporaryDirectory() as tmp:
         ddql = ddql_policy(Path(tmp))
         torch_ddql = ddql_policy(Path(tmp), ":forward=torch")
+        rate, decision = decision_and_matmul(ddql, seconds)
+        out["matmul_gflop_per_s"] = rate / 1e9
+        out["qnet_flop_limit_ms_batch1"] = 1000.0 * forward_flops(m20.window) / rate
         out["ddql_forward"] = ddql.forward.name
-        out["ddql_decision_ms_batch1"] = 1000.0 * decision_seconds(ddql, 1, seconds)
+        out["ddql_decision_ms_batch1"] = 1000.0 * decision
         out["ddql_decision_ms_batch1_torch_forward"] = 1000.0 * decision_seconds(torch_ddql, 1, seconds)
         out["ddql_paper_decision_ms_batch1"] = 1000.0 * decision_seconds(
             ddql_policy(Path(tmp), PAPER_OPTIONS), 1, seconds
@@ -221,7 +238,7 @@ def run_bench(seconds: float = 2.0, threads: int = 1, train: bool = True) -> dic
     env.reset(seed=0)
     out["observe_ms_per_batch_256x2"] = 1000.0 * _median_seconds(env.observe, seconds)
     if train:
-        out.update(training_figures(rate, threads, seconds))
+        out.update(training_figures(threads, seconds))
     out["machine"]["load_average_before"] = list(load_before)
     out["machine"]["load_average_after"] = list(os.getloadavg())
     return out

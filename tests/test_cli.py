@@ -72,6 +72,12 @@ def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path
     assert data["ddql_decision_over_flop_limit"] == pytest.approx(
         data["ddql_decision_ms_batch1"] / data["qnet_flop_limit_ms_batch1"]
     )
+    # the training ceiling: per sample one forward and 64 / 16 x 5 forwards' worth of gradient step, at
+    # the matmul rate measured around the training
+    per_sample = 4.88448e6 * (1 + 64 / 16 * 5)
+    assert data["train_flop_ceiling_samples_per_s"] == pytest.approx(
+        data["train_matmul_gflop_per_s"] * 1e9 / per_sample
+    )
     m = data["machine"]
     assert m["threads"] == 1 and m["cpu_count"] >= 1 and m["cpu_model"] and m["torch"] and m["numpy"]
     assert len(m["load_average_before"]) == 3 and len(m["load_average_after"]) == 3
