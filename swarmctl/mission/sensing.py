@@ -102,17 +102,12 @@ def sense(
             dropped += len(rc) + len(rt)
             continue
         keep = in_footprint(rc, tuple(r.cell), grid, fov)
-        rphi, robstacle = (
-            np.asarray(r.phi, dtype=np.float32).reshape(-1),
-            np.asarray(r.obstacle, dtype=bool).reshape(-1),
-        )
-        kept = int(np.count_nonzero(keep))
-        if kept < len(keep):  # a report of the footprint alone (the usual one) needs no selection
-            dropped += len(keep) - kept
-            rc, rphi, robstacle = rc[keep], rphi[keep], robstacle[keep]
+        dropped += int(len(keep) - np.count_nonzero(keep))
+        rc = rc[keep]
         cells.append(rc)
-        phi.append(rphi)
-        obstacle.append(robstacle | np.asarray(grid.blocked, dtype=bool)[rc[:, 0], rc[:, 1]])
+        phi.append(np.asarray(r.phi, dtype=np.float32).reshape(-1)[keep])
+        blocked = np.asarray(grid.blocked, dtype=bool)[rc[:, 0], rc[:, 1]]
+        obstacle.append(np.asarray(r.obstacle, dtype=bool).reshape(-1)[keep] | blocked)
         if len(rt):
             keep_t = in_footprint(rt, tuple(r.cell), grid, fov)
             dropped += int(len(keep_t) - np.count_nonzero(keep_t))
