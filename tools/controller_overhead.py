@@ -22,6 +22,9 @@ calls (what a round is mostly made of) timed alone, in CPU ms, so that tables fr
 machines, can be set side by side (a figure twice the reference's on a machine whose reference is
 twice as long is the same code at the same cost).
 
+Below the table, how the CPU grows with the swarm (`scaling`): the exponent of a least-squares fit of
+log CPU on log vehicles over the sizes of 12 and more, and 50 vehicles' CPU over 3 vehicles'.
+
 With --runs N each size is flown N times, back to back, and the table gives the minimum and the median
 of the per-run means, with the machine's load average (1 min) before each run: on a shared machine
 the minimum is the figure least disturbed by other work.
@@ -167,6 +170,24 @@ def summarise(runs: list[dict]) -> dict:
     return out
 
 
+def scaling(rows: list[dict]) -> dict:
+    """How the controller's CPU per step grows with the swarm, from each size's process CPU (the minimum
+    over the runs; a single run's mean): `exponent`, the slope of a least-squares fit of log CPU on log
+    vehicles over the sizes of 12 vehicles and more (the speed target's 12..200; None with fewer than two
+    such sizes), the `sizes` it was fitted over, and `ratio_50_3`, 50 vehicles' CPU over 3 vehicles'
+    (None without both)."""
+    import numpy as np
+
+    cpu = {r["vehicles"]: r.get("process_cpu_min", r.get("process_cpu_mean")) for r in rows}
+    cpu = {n: c for n, c in cpu.items() if c is not None and c > 0}
+    sizes = sorted(n for n in cpu if n >= 12)
+    exponent = None
+    if len(sizes) >= 2:
+        exponent = float(np.polyfit(np.log(sizes), np.log([cpu[n] for n in sizes]), 1)[0])
+    ratio = cpu[50] / cpu[3] if 50 in cpu and 3 in cpu else None
+    return {"exponent": exponent, "sizes": sizes if exponent is not None else [], "ratio_50_3": ratio}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[3, 12, 50])
@@ -236,6 +257,17 @@ def main() -> None:
             f"{r.get('controller_mean', float('nan')):.1f} | {r.get('controller_p95', float('nan')):.1f} | "
             f"{r.get('round_mean', float('nan')):.1f} |"
         )
+    growth = scaling(rows)
+    if growth["exponent"] is not None or growth["ratio_50_3"] is not None:
+        parts = []
+        if growth["exponent"] is not None:
+            parts.append(
+                f"exponent {growth['exponent']:.2f} over {', '.join(map(str, growth['sizes']))} vehicles "
+                "(least squares on log process CPU against log vehicles" + (", the minima)" if args.runs > 1 else ")")
+            )
+        if growth["ratio_50_3"] is not None:
+            parts.append(f"50 vehicles / 3 vehicles {growth['ratio_50_3']:.2f}")
+        lines += ["", "growth: " + "; ".join(parts)]
     text = "\n".join(lines)
     print(text)
     if args.out is not None:
