@@ -178,7 +178,7 @@ class _Inbox:
         so a flooded link cannot hold up the loop (the rest waits for the next drain)."""
         assert self._sockets is not None
         got: dict[MavlinkLink, list] = {}
-        stopped: set[MavlinkLink] = set()  # closing: their sockets may still read as ready
+        stopped: set[MavlinkLink] = set()  # closing, or ready with nothing to read: not read again this drain
         select = self._sockets.select
         for _ in range(READ_BATCH):
             ready = [key.data for key, _ in select(0)]
