@@ -103,7 +103,9 @@ def test_a_vehicle_low_on_battery_is_sent_home_and_the_return_is_seen_through(tm
         weak = swarm.mocks[1]
 
         async def drain(controller):
-            await wait_for(lambda: controller.step >= 2, 60, "the search to start")
+            # once it climbs (past the battery check before take-off) and before the search starts, so that
+            # the search cannot end before the controller has seen the battery low
+            await wait_for(lambda: weak.rel_alt > 1.0, 60, "uav2 to climb")
             with weak._lock:
                 weak.battery = 10.0  # below battery.return_below (15 %)
 

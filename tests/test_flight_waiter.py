@@ -26,6 +26,7 @@ class FakeVehicle:
         self.sent: float | None = None
         self.target = None
         self.kept = 0
+        self.fix_waker = None
 
     def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
         if not self.answers:
@@ -106,3 +107,46 @@ def test_a_blocked_cell_is_refused_before_any_target_goes_out():
     with pytest.raises(MavlinkError, match="blocked cell"):
         run(fly_all(c, [(agent("ok", ok), (0, 0)), (agent("bad", FakeVehicle(0.0)), blocked)], 1.0))
     assert ok.target is None
+
+
+def test_an_arrival_is_seen_at_its_position_report_not_at_the_next_poll(monkeypatch):
+    """With the timers' poll an hour apart, the flights still end at the position reports that show
+    them arrived (the drivers set `fix_waker`); the waker is handed back afterwards."""
+    import swarmctl.mission.flight as flight
+
+    monkeypatch.setattr(flight, "POLL_S", 3600.0)
+    c = controller()
+    first, second = FakeVehicle(None), FakeVehicle(None)
+
+    async def report(v: FakeVehicle) -> None:
+        while v.fix_waker is None:  # the flight has started
+            await asyncio.sleep(0)
+        v.arrive_after = 0.0  # it is there: the driver has the report ...
+        v.fix_waker.set()  # ... and says so
+
+    async def scenario():
+        reports = asyncio.gather(report(first), report(second))
+        moves = [(agent("a", first), (1, 0)), (agent("b", second), (0, 1))]
+        out = await asyncio.wait_for(fly_all(c, moves, 7200.0), 60)
+        await reports
+        return out
+
+    assert run(scenario()) == [True, True]
+    assert first.fix_waker is None and second.fix_waker is None
+
+
+def test_the_waker_wakes_its_waiter_keeps_a_set_made_between_waits_and_times_out():
+    from swarmctl.mavlink.vehicle import Waker
+
+    async def scenario():
+        waker = Waker()
+        timed_out = await waker.wait(0.0)
+        waker.set()  # nobody waits: kept for the next wait
+        kept = await waker.wait(3600.0)
+        loop = asyncio.get_running_loop()
+        loop.call_soon(waker.set)
+        woken = await asyncio.wait_for(waker.wait(3600.0), 60)
+        again = await waker.wait(0.0)  # the set was used up
+        return timed_out, kept, woken, again
+
+    assert run(scenario()) == (False, True, True, False)

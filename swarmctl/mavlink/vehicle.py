@@ -86,6 +86,43 @@ def fence_vertices(polygon: list[tuple[float, float]]) -> list[tuple[float, floa
     return vertices
 
 
+class Waker:
+    """What a waiter on the loop sleeps on until something `set`s it or its timeout passes: asyncio.Event
+    with a timeout, for one waiter, without the task that `asyncio.wait_for(event.wait())` makes on every
+    wait (a round's flights wait once per drain of the links)."""
+
+    def __init__(self) -> None:
+        self._waiting: asyncio.Future | None = None
+        self._pending = False  # set while nobody waited: the next wait returns at once
+
+    def set(self) -> None:
+        """Wake the waiter (or, if none waits, the next one)."""
+        waiting = self._waiting
+        if waiting is None:
+            self._pending = True
+        elif not waiting.done():
+            waiting.set_result(True)
+
+    async def wait(self, timeout: float) -> bool:
+        """Sleep until `set` (since the last wait) or `timeout` seconds; True when woken by `set`."""
+        if self._pending:
+            self._pending = False
+            return True
+        loop = asyncio.get_running_loop()
+        waiting = self._waiting = loop.create_future()
+        timer = loop.call_later(max(timeout, 0.0), _wake, waiting, False)
+        try:
+            return await waiting
+        finally:
+            timer.cancel()
+            self._waiting = None
+
+
+def _wake(waiting: asyncio.Future, value: bool) -> None:
+    if not waiting.done():
+        waiting.set_result(value)
+
+
 class Vehicle(abc.ABC):
     """A vehicle the controller commands. Implemented by ArduPilotVehicle and PX4Vehicle."""
 
@@ -95,6 +132,14 @@ class Vehicle(abc.ABC):
     odometer: Odometer  # fed by the driver with every position report
     _limits: FlightLimits | None = None
     _reached_memo: tuple[Position, Target, float, bool] | None = None  # see `reached`
+    fix_waker: Waker | None = None  # set at every position report while a flight waits for one
+
+    def _position_reported(self) -> None:
+        """The driver has a new position report: wake whatever waits for one (swarmctl.mission.flight),
+        so an arrival is seen when it is reported, not at the next poll."""
+        waker = self.fix_waker
+        if waker is not None:
+            waker.set()
 
     @property
     def autopilot(self) -> str | None:

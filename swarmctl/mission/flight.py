@@ -18,6 +18,7 @@ import numpy as np
 
 from swarmctl.knowledge.stepping import step_all
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mavlink.vehicle import Waker
 from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.sensing import Sensed, footprints, sense
@@ -59,7 +60,7 @@ def nearest_free(c: Controller, start: tuple[int, int], exclude: Agent | None = 
     return (flat // h, flat % h)
 
 
-POLL_S = 0.05  # how often the waiting flights are looked at (arrival, timeout, the driver's resends)
+POLL_S = 0.05  # how often the waiting flights' timers are looked at (timeout, the driver's resends)
 COURSE_S = 0.1  # how often a flight in progress is checked against its course (swarmctl.mission.watch)
 
 
@@ -84,9 +85,10 @@ async def fly_all(c: Controller, moves: list[tuple[Agent, tuple[int, int]]], tim
     out: a wait cut short because the link was lost, the mission stopped or the vehicle went off course
     (swarmctl.mission.watch flags it at the next round) gives True at once (it is not a step timeout).
 
-    One waiter for all of them, every POLL_S (not a task per vehicle): a driver that sends at once
-    (`Vehicle.goto_nowait`) is not given a task at all, one that must wait for an answer (PX4) gets one
-    for its `goto` only."""
+    One waiter for all of them (not a task per vehicle): it looks for arrivals whenever a flying vehicle
+    reports its position (at most once a drain of the links: `Vehicle.fix_waker`), and at the timers
+    (timeout, the driver's resends) every POLL_S. A driver that sends at once (`Vehicle.goto_nowait`) is
+    not given a task at all, one that must wait for an answer (PX4) gets one for its `goto` only."""
     for a, cell in moves:
         if c.grid.blocked[cell]:  # the guard never lets this happen; defence in depth
             raise MavlinkError(f"{a.name}: refusing a setpoint in blocked cell {cell}")
@@ -116,13 +118,31 @@ async def _send(f: _Flight, lat: float, lon: float, alt: float) -> None:
 
 
 async def _wait(c: Controller, flights: list[_Flight], sending: list[asyncio.Task]) -> None:
+    waker = Waker()
+    vehicles = [f.agent.vehicle for f in flights]
+    for v in vehicles:
+        v.fix_waker = waker
+    try:
+        await _wait_woken(c, flights, sending, waker)
+    finally:
+        for v in vehicles:
+            if v.fix_waker is waker:
+                v.fix_waker = None
+
+
+async def _wait_woken(c: Controller, flights: list[_Flight], sending: list[asyncio.Task], waker: Waker) -> None:
+    """Until every flight has its outcome: arrivals looked at when woken (a position report), the
+    timers and the driver's resends every POLL_S, the course every COURSE_S."""
     tolerance = c.plan.spec.flight.reach_tolerance
-    course_at = 0.0
+    poll_at = course_at = 0.0
     while True:
         for t in sending:
             if t.done() and t.exception() is not None:
                 raise t.exception()
         now = time.monotonic()
+        poll = now >= poll_at
+        if poll:
+            poll_at = now + POLL_S
         course = now >= course_at
         if course:
             course_at = now + COURSE_S
@@ -136,7 +156,9 @@ async def _wait(c: Controller, flights: list[_Flight], sending: list[asyncio.Tas
             v = f.agent.vehicle
             if v.reached(tolerance) or v.lost or c.stopping or (course and off_course(c, f.agent, f.cell)):
                 f.reached = True
-            elif time.monotonic() > f.deadline:
+            elif not poll:
+                waiting = True  # woken by a position report: its timers wait for the poll
+            elif now > f.deadline:
                 f.reached = False
             else:
                 try:
@@ -146,7 +168,7 @@ async def _wait(c: Controller, flights: list[_Flight], sending: list[asyncio.Tas
                     f.reached = False
         if not waiting:
             return
-        await asyncio.sleep(POLL_S)
+        await waker.wait(poll_at - time.monotonic())
 
 
 async def sense_and_share(c: Controller, a: Agent, moved: bool, since: float) -> list[tuple[int, int]]:

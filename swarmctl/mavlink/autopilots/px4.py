@@ -252,6 +252,7 @@ class PX4Vehicle(Vehicle):
         if math.isfinite(p.latitude_deg) and (p.latitude_deg or p.longitude_deg):
             self._position = Position(p.latitude_deg, p.longitude_deg, p.relative_altitude_m, p.absolute_altitude_m)
             self.odometer.add(self._position)
+            self._position_reported()
 
     def _on_home(self, h: Any) -> None:
         if math.isfinite(h.latitude_deg) and (h.latitude_deg or h.longitude_deg):
