@@ -110,7 +110,7 @@ class Waker:
             return True
         loop = asyncio.get_running_loop()
         waiting = self._waiting = loop.create_future()
-        timer = loop.call_later(max(timeout, 0.0), _wake, waiting, False)
+        timer = loop.call_later(max(timeout, 0.0), _time_out, waiting)
         try:
             return await waiting
         finally:
@@ -118,9 +118,9 @@ class Waker:
             self._waiting = None
 
 
-def _wake(waiting: asyncio.Future, value: bool) -> None:
+def _time_out(waiting: asyncio.Future) -> None:
     if not waiting.done():
-        waiting.set_result(value)
+        waiting.set_result(False)
 
 
 class Vehicle(abc.ABC):

@@ -191,8 +191,7 @@ class ArduPilotVehicle(Vehicle):
         """This vehicle's position reports into the odometer (with the figures `position` gives)."""
         if msg._header.srcSystem == self.sysid and (msg.lat != 0 or msg.lon != 0):  # 0, 0: no position yet
             self.odometer.add_fix(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
-            if self.fix_waker is not None:
-                self.fix_waker.set()  # _position_reported, inlined: it runs for every report
+            self._position_reported()
 
     def _on_heartbeat(self, msg: Any) -> None:
         """This vehicle's mode changes, with when they were first reported."""
