@@ -150,3 +150,40 @@ def test_the_waker_wakes_its_waiter_keeps_a_set_made_between_waits_and_times_out
         return timed_out, kept, woken, again
 
     assert run(scenario()) == (False, True, True, False)
+
+
+def test_both_drivers_wake_the_flights_at_a_position_report_and_not_at_one_without_a_position():
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
+    from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
+    from swarmctl.mavlink.vehicle import Waker
+
+    sender = mavlink2.MAVLink(None, srcSystem=7, srcComponent=1)
+    parser = mavlink2.MAVLink(None)
+
+    def global_position(lat_e7: int, lon_e7: int):
+        frame = sender.global_position_int_encode(0, lat_e7, lon_e7, 40000, 40000, 0, 0, 0, 0).pack(sender)
+        return parser.decode(bytearray(frame))
+
+    def px4_position(lat: float, lon: float):
+        return SimpleNamespace(latitude_deg=lat, longitude_deg=lon, relative_altitude_m=40.0, absolute_altitude_m=220.0)
+
+    ardupilot = ArduPilotVehicle(SimpleNamespace(), 7)
+    px4 = PX4Vehicle("udpin:127.0.0.1:14999", sysid=8)
+    reports = [
+        (ardupilot, lambda: ardupilot._on_position(global_position(0, 0)), False),  # no position yet
+        (ardupilot, lambda: ardupilot._on_position(global_position(418_800_000, -876_300_000)), True),
+        (px4, lambda: px4._on_position(px4_position(float("nan"), 0.0)), False),
+        (px4, lambda: px4._on_position(px4_position(41.88, -87.63)), True),
+    ]
+
+    async def scenario():
+        woken = []
+        for vehicle, report, _ in reports:
+            vehicle.fix_waker = Waker()
+            report()
+            woken.append(await vehicle.fix_waker.wait(0.0))
+        return woken
+
+    assert run(scenario()) == [wakes for _, _, wakes in reports]
