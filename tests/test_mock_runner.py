@@ -7,7 +7,8 @@ import threading
 import time
 
 from swarmctl.mavlink.network import MavlinkLink
-from swarmctl.sim.autopilot import MockAutopilot, MockRunner
+from swarmctl.sim.autopilot import MockAutopilot
+from swarmctl.sim.mock_runner import MockRunner
 from tests.mavlink_support import FAST, HOME, our_threads, run, until
 
 

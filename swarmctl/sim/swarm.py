@@ -22,8 +22,9 @@ from swarmctl.mavlink.autopilots.base import autopilot_named
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.plan import MissionPlan, make_plan
 from swarmctl.mission.spec import DEMO_SETTINGS, ON_LINK, MissionSpec, VehicleSpec
-from swarmctl.sim.autopilot import MockAutopilot, MockRunner
+from swarmctl.sim.autopilot import MockAutopilot
 from swarmctl.sim.detector import FOV_CELLS, SimDetector
+from swarmctl.sim.mock_runner import MockRunner
 from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
 
