@@ -165,15 +165,49 @@ def training_figures(threads: int, seconds: float) -> dict:
     }
 
 
-def cpu_model() -> str:
-    """The processor's name (Linux: /proc/cpuinfo's model name), else what platform knows of it."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+def cpu_id(cpuinfo: str | None = None) -> dict:
+    """The processor as Linux's /proc/cpuinfo (or the text `cpuinfo`) names its first CPU: name, family
+    and model numbers, and its widest vector instructions (what a virtual machine's bare "AMD EPYC"
+    leaves out, and what the figures depend on); what platform knows of it where there is no such file."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.split("\n\n", 1)[0].splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            fields.setdefault(key.strip(), value.strip())
+    flags = set(fields.get("flags", "").split())
+    isa = [
+        name
+        for name, flag in (
+            ("AVX2", "avx2"),
+            ("AVX-512", "avx512f"),
+            ("AVX-512 BF16", "avx512_bf16"),
+            ("AMX", "amx_tile"),
+        )
+        if flag in flags
+    ]
+    family, model = fields.get("cpu family", ""), fields.get("model", "")
+    return {
+        "name": fields.get("model name") or platform.processor() or platform.machine(),
+        "family": int(family) if family.isdigit() else None,
+        "model": int(model) if model.isdigit() else None,
+        "isa": isa,
+    }
+
+
+def cpu_model(cpuinfo: str | None = None) -> str:
+    """The processor in one line, e.g. "AMD EPYC (family 25, model 17; AVX2, AVX-512, AVX-512 BF16)"."""
+    cpu = cpu_id(cpuinfo)
+    parts = []
+    if cpu["family"] is not None:
+        parts.append(f"family {cpu['family']}" + (f", model {cpu['model']}" if cpu["model"] is not None else ""))
+    if cpu["isa"]:
+        parts.append(", ".join(cpu["isa"]))
+    return cpu["name"] + (f" ({'; '.join(parts)})" if parts else "")
 
 
 def machine(threads: int) -> dict:
@@ -182,14 +216,14 @@ def machine(threads: int) -> dict:
 
     from swarmctl.policy.forward import onnx_available
 
-    model = cpu_model()
     ort = None
     if onnx_available():
         import onnxruntime
 
         ort = onnxruntime.__version__
     return {
-        "cpu_model": model,
+        "cpu_model": cpu_model(),
+        "cpu": cpu_id(),
         "cpu_count": os.cpu_count(),
         "platform": platform.platform(),
         "python": platform.python_version(),

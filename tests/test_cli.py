@@ -80,6 +80,7 @@ def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path
     )
     m = data["machine"]
     assert m["threads"] == 1 and m["cpu_count"] >= 1 and m["cpu_model"] and m["torch"] and m["numpy"]
+    assert m["cpu"]["name"] and m["cpu_model"].startswith(m["cpu"]["name"])
     assert len(m["load_average_before"]) == 3 and len(m["load_average_after"]) == 3
 
 

@@ -227,7 +227,7 @@ def main() -> None:
         rows.append(summarise(runs))
     lines = [
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
-        f"{os.cpu_count()} CPUs ({cpu_model()}), mocks in "
+        f"{os.cpu_count()} CPUs, {cpu_model()}, mocks in "
         f"{'the same' if args.same_process else 'a child'} process" + (" on their own CPU" if args.own_cpu else ""),
         f"machine reference (a fixed dict and small-numpy workload, alone, before the runs): {reference:.1f} ms",
         "",

@@ -130,7 +130,7 @@ def main() -> None:
     n = max(r.get("rounds", 0), 1)
     print(
         f"{args.vehicles} vehicles, policy {args.policy}, {r.get('rounds', 0)} search rounds, "
-        f"{os.cpu_count()} CPUs ({controller_overhead.cpu_model()}), load {load:.2f} before; "
+        f"{os.cpu_count()} CPUs, {controller_overhead.cpu_model()}, load {load:.2f} before; "
         f"controller CPU {r.get('cpu_mean', float('nan')):.1f} ms a round (with the wrappers)\n"
     )
     print("| phase (inclusive; indented: part of the one above) | CPU ms a round | calls a round |")
