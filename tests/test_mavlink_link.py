@@ -395,7 +395,7 @@ def test_udp_link_reads_on_the_loop_a_burst_longer_than_a_read_batch_in_order():
     the link is closed its socket is no longer read."""
     import socket
 
-    from swarmctl.mavlink.network import READ_BATCH
+    from swarmctl.mavlink.inbox import READ_BATCH
 
     burst = 2 * READ_BATCH + 22
 
@@ -471,7 +471,7 @@ def test_udp_links_read_in_passes_without_empty_reads(monkeypatch):
 
 def _watched(link: MavlinkLink, fd: int) -> bool:
     """`fd` is among the sockets the loop's inbox reads."""
-    from swarmctl.mavlink.network import _inbox
+    from swarmctl.mavlink.inbox import inbox_for
 
-    sockets = _inbox(asyncio.get_running_loop())._sockets
+    sockets = inbox_for(asyncio.get_running_loop())._sockets
     return sockets is not None and fd in {key.fd for key in sockets.get_map().values()}

@@ -1,19 +1,19 @@
 """The controller's MAVLink link on pymavlink, for asyncio.
 
 Concurrency model: one asyncio event loop drives every vehicle. A UDP link's socket is read on the loop
-itself: the sockets of all UDP links sit in one selector of the loop's `_Inbox`, the loop watches that
-selector, and each drain of the inbox reads every socket that is ready (one datagram from each ready
-socket a pass, passes until none is, up to READ_BATCH datagrams each) and parses with pymavlink there;
-a stream link (TCP, serial) has a reader thread that blocks on its port and parses there, handing the
-messages to the inbox (one `call_soon_threadsafe` per drain, not one per read). The inbox delivers what
-every link has brought at once. UDP links have no thread because a thread per vehicle cost more than
-the parsing: at 50 vehicles about 1,300 datagrams a second, each waking its link's thread
-(docs/mavlink.md); nor a watch of their own, which woke the loop once per datagram. A message goes only
-to the listeners registered for its type (or for every message), and batch listeners (the recorder's
-tap) take the messages of the links they listen to a batch at a time (once per drain). Everything else
-(state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and one timer of
-the loop checks every link for link loss. Sending is a non-blocking datagram/serial write under a lock.
-A slow or silent vehicle only makes its own coroutines wait, never the others.
+itself: the sockets of all UDP links sit in one selector of the loop's `Inbox` (swarmctl.mavlink.inbox),
+the loop watches that selector, and each drain of the inbox reads every socket that is ready (one
+datagram from each ready socket a pass, passes until none is, up to READ_BATCH datagrams each) and
+parses with pymavlink there; a stream link (TCP, serial) has a reader thread that blocks on its port and
+parses there, handing the messages to the inbox (one `call_soon_threadsafe` per drain, not one per
+read). The inbox delivers what every link has brought at once. UDP links have no thread because a thread
+per vehicle cost more than the parsing: at 50 vehicles about 1,300 datagrams a second, each waking its
+link's thread (docs/mavlink.md); nor a watch of their own, which woke the loop once per datagram. A
+message goes only to the listeners registered for its type (or for every message), and batch listeners
+(the recorder's tap) take the messages of the links they listen to a batch at a time (once per drain).
+Everything else (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and
+one timer of the loop checks every link for link loss. Sending is a non-blocking datagram/serial write
+under a lock. A slow or silent vehicle only makes its own coroutines wait, never the others.
 
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
@@ -24,11 +24,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import selectors
 import socket
 import threading
 import time
-import weakref
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -38,6 +36,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
+from swarmctl.mavlink.inbox import Inbox, call_batch_listeners, inbox_for
 from swarmctl.mavlink.transport import Transport, UdpTransport, open_transport, parse_bytes, valid_frame
 from swarmctl.signing import setup_signing
 
@@ -53,185 +52,7 @@ def command_name(command: int) -> str:
     return entry.name if entry is not None else f"MAV_CMD {command}"
 
 
-GATHER_S = 0.005  # a loop woken by a reader (or a UDP socket) takes what has come in this long after
-WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
-READ_BATCH = 64  # datagrams a UDP link reads at most in one drain before the loop's other work gets its turn
 MAX_DATAGRAM = 65535
-
-
-class _Inbox:
-    """The loop's side of every link on it. What the links' readers parse is handed to the loop in
-    one callback: a reader appends (link, messages) and wakes the loop only when no drain is pending; the
-    drain runs GATHER_S later and hands each link's messages, in their order, to that link's listeners,
-    then each batch listener once with the messages of all the links it listens to (so the loop is woken
-    a few hundred times a second at most, not once per datagram, and the recorder's tap is called once
-    per drain, not once per link). And one timer checks every open link's heartbeats every WATCHDOG_S
-    (not a task per link).
-
-    UDP links have no reader: their sockets sit in one selector of the inbox, whose descriptor the loop
-    watches. When a datagram arrives the loop stops watching it and schedules a drain, and the drain
-    first reads every socket that is ready (up to READ_BATCH datagrams each: _read_ready), then delivers, then
-    watches again: the loop wakes once per drain, not once per datagram."""
-
-    def __init__(self, loop: asyncio.AbstractEventLoop):
-        self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
-        self._items: list[tuple[MavlinkLink, list]] = []
-        self._lock = threading.Lock()
-        self._scheduled = False
-        self._links: dict[MavlinkLink, None] = {}  # open links, in the order they were opened
-        self._watchdog: asyncio.TimerHandle | None = None
-        self._sockets: selectors.BaseSelector | None = None  # the UDP links' sockets (data: the link)
-        self._watching = False  # the loop watches self._sockets
-
-    def read(self, link: MavlinkLink, sock: socket.socket) -> bool:
-        """Read `sock` (a UDP link's) at each drain; False where this platform's selectors cannot be
-        watched by the loop (the link then keeps a reader thread)."""
-        if self._sockets is None:
-            sockets = selectors.DefaultSelector()
-            if not hasattr(sockets, "fileno"):  # select() only: nothing the loop could watch
-                sockets.close()
-                return False
-            self._sockets = sockets
-        self._sockets.register(sock, selectors.EVENT_READ, link)
-        self._watch()
-        return True
-
-    def unread(self, sock: socket.socket) -> None:
-        if self._sockets is None:
-            return
-        self._sockets.unregister(sock)
-        if not self._sockets.get_map():
-            self._unwatch()
-            self._sockets.close()
-            self._sockets = None
-
-    def _watch(self) -> None:
-        loop = self._loop()
-        if not self._watching and self._sockets is not None and loop is not None and not loop.is_closed():
-            loop.add_reader(self._sockets.fileno(), self._readable)
-            self._watching = True
-
-    def _unwatch(self) -> None:
-        loop = self._loop()
-        if self._watching and self._sockets is not None and loop is not None and not loop.is_closed():
-            loop.remove_reader(self._sockets.fileno())
-        self._watching = False
-
-    def _readable(self) -> None:
-        """On the loop: a UDP link has datagrams; read at the next drain, unwatched until then."""
-        self._unwatch()
-        self.put(None, [], on_loop=True)
-
-    def put(self, link: MavlinkLink | None, msgs: list, on_loop: bool = False) -> None:
-        """From a reader thread (or, with on_loop, from the loop's own thread; link None: only a drain
-        scheduled). RuntimeError when the loop is closed."""
-        with self._lock:
-            if link is not None:
-                self._items.append((link, msgs))
-            if self._scheduled:
-                return
-            self._scheduled = True
-        loop = self._loop()
-        try:
-            if loop is None:
-                raise RuntimeError("the event loop is gone")
-            if on_loop:
-                loop.call_later(GATHER_S, self._drain)
-            else:
-                loop.call_soon_threadsafe(loop.call_later, GATHER_S, self._drain)
-        except RuntimeError:
-            with self._lock:
-                self._scheduled = False
-            raise
-
-    def _drain(self) -> None:
-        if self._sockets is not None:
-            read = self._read_ready()
-            self._watch()
-        else:
-            read = []
-        with self._lock:
-            items, self._items = self._items, []
-            self._scheduled = False
-        items += read
-        batches: dict[MavlinkLink, list] = {}
-        for link, msgs in items:
-            if link in batches:
-                batches[link] += msgs
-            else:
-                batches[link] = msgs
-        shared: dict[Callable[[list], None], list] = {}  # batch listener -> the messages of its links
-        for link, msgs in batches.items():
-            accepted = link._deliver(msgs)
-            if accepted:
-                for cb in dict.fromkeys(link._batch_listeners):  # each once, even if added twice
-                    if cb in shared:
-                        shared[cb] += accepted
-                    else:
-                        shared[cb] = list(accepted)
-        _call_batch_listeners(shared)
-
-    def _read_ready(self) -> list[tuple[MavlinkLink, list]]:
-        """The ready UDP sockets' datagrams, parsed, per link in their order: in passes of one datagram
-        from each socket the selector finds ready, until none is, so no read comes back empty (a failed
-        recvfrom cost more than the datagram's parse in a 50-vehicle flight); at most READ_BATCH passes,
-        so a flooded link cannot hold up the loop (the rest waits for the next drain)."""
-        assert self._sockets is not None
-        got: dict[MavlinkLink, list] = {}
-        stopped: set[MavlinkLink] = set()  # closing, or ready with nothing to read: not read again this drain
-        select = self._sockets.select
-        for _ in range(READ_BATCH):
-            ready = [key.data for key, _ in select(0)]
-            if not ready or stopped.issuperset(ready):
-                break
-            for link in ready:
-                msgs = link._read_datagram()
-                if msgs is None:
-                    stopped.add(link)
-                elif msgs:
-                    if link in got:
-                        got[link] += msgs
-                    else:
-                        got[link] = msgs
-        return list(got.items())
-
-    def watch(self, link: MavlinkLink) -> None:
-        self._links[link] = None
-        if self._watchdog is None:
-            self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check)
-
-    def unwatch(self, link: MavlinkLink) -> None:
-        self._links.pop(link, None)
-        if not self._links and self._watchdog is not None:
-            self._watchdog.cancel()
-            self._watchdog = None
-
-    def _check(self) -> None:
-        now = time.monotonic()
-        for link in list(self._links):
-            try:
-                link._check_heartbeats(now)
-            except Exception:  # one link's failure must not stop the watch of the others
-                log.exception("link watchdog failed")
-        self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
-
-
-def _call_batch_listeners(batches: dict[Callable[[list], None], list]) -> None:
-    for cb, msgs in batches.items():
-        try:
-            cb(msgs)
-        except Exception:  # a listener's bug must not stop the link
-            log.exception("MAVLink listener failed")
-
-
-_inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _Inbox] = weakref.WeakKeyDictionary()
-
-
-def _inbox(loop: asyncio.AbstractEventLoop) -> _Inbox:
-    box = _inboxes.get(loop)
-    if box is None:
-        box = _inboxes[loop] = _Inbox(loop)
-    return box
 
 
 class _Writer:
@@ -318,14 +139,14 @@ class MavlinkLink:
         self._tasks: list[asyncio.Task] = []
         self._transport: Transport | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._inbox: _Inbox | None = None
+        self._inbox: Inbox | None = None
         self.mav: Any = None
 
     # --- life cycle ---------------------------------------------------------------------------------
 
     async def open(self) -> MavlinkLink:
         self._loop = asyncio.get_running_loop()
-        self._inbox = _inbox(self._loop)
+        self._inbox = inbox_for(self._loop)
         self._transport = open_transport(self.endpoint)
         self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id, srcComponent=self.component_id)
         self.mav.robust_parsing = True
@@ -396,7 +217,7 @@ class MavlinkLink:
                     return
 
     def _read_datagram(self) -> list | None:
-        """One queued datagram of a UDP link (on the loop, at a drain of the inbox: _Inbox._read_ready),
+        """One queued datagram of a UDP link (on the loop, at a drain of the inbox: Inbox._read_ready),
         parsed; None when the link is closing or has none after all. A sender is answered once a datagram
         of it held a valid frame."""
         transport = self._transport
@@ -419,7 +240,7 @@ class MavlinkLink:
         """Messages of this link to their listeners, then to its batch listeners."""
         accepted = self._deliver(msgs)
         if accepted:
-            _call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted))
+            call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted))
 
     def _deliver(self, msgs: list) -> list:
         """Messages of this link to its per-message listeners (and peers, waiters); the valid ones."""
