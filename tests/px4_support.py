@@ -6,7 +6,7 @@ it the tests are skipped with the reason. PX4's shell runs its commands as `px4-
 found beside it; a copy may have lost them (../shared has them as 3-byte files), so each run builds a
 bin/ folder of its own: a link to the binary, px4-alias.sh and one px4-NAME link per alias in it.
 
-Instance N (CONTRACTS' table: 5-9, system id N+1) sends its ground-station link from UDP 18570+N to
+Instance N (the tests use 5-9, system id N+1) sends its ground-station link from UDP 18570+N to
 127.0.0.1:14550 and its API (offboard) link from 14580+N to 127.0.0.1:14540+N: a client listens on
 `udpin:0.0.0.0:14540+N`. PX4 holds /tmp/px4_lock-N while it runs and leaves /tmp/px4-sock-N behind;
 a run picks instance numbers nobody holds and removes what its own instances left there.
@@ -38,7 +38,7 @@ from tests.sitl_support import (
 
 PX4_ENV = ("PX4_SITL", "SWARMCTL_PX4")  # the first one set wins
 PX4_DEFAULT = SHARED / "px4" / "bin" / "px4"
-PX4_INSTANCES = tuple(range(5, 10))  # CONTRACTS: PX4 -i 5-9 (system id 6-10)
+PX4_INSTANCES = tuple(range(5, 10))  # PX4 -i 5-9 (system id 6-10)
 PX4_HOME = (41.879653, -87.635357, 180.0)  # lat, lon, alt AMSL: the Chicago Loop take-off point
 PX4_ENV_VARS = {"PX4_SYS_AUTOSTART": "10040", "PX4_SIMULATOR": "sihsim", "PX4_SIM_MODEL": "sihsim_quadx"}
 AUTOPILOT_PX4 = 12  # MAV_AUTOPILOT_PX4
@@ -106,7 +106,7 @@ def instance_busy(instance: int) -> str | None:
 
 
 def free_px4_instances(count: int) -> list[int]:
-    """`count` instance numbers from CONTRACTS' table that no running PX4 uses."""
+    """`count` instance numbers of PX4_INSTANCES that no running PX4 uses."""
     busy = {n: why for n in PX4_INSTANCES if (why := instance_busy(n))}
     free = [n for n in PX4_INSTANCES if n not in busy]
     if len(free) < count:

@@ -5,9 +5,9 @@ real sockets, and what the recording and the simulators say afterwards.
     with Flights([scenario, ...]) as flights:   # every scenario starts at once, each in a thread of its own
         result = flights.result("trio")         # waits for that one; raises SitlError if it could not fly
 
-A scenario holds the instance numbers it flies from CONTRACTS' table (ArduCopter -I 0-4 with --sysid
+A scenario holds the instance numbers it flies (ArduCopter -I 0-4 with --sysid
 N+1, PX4 -i 5-9 with system id N+1) while it runs; one that needs more than are free waits for them, so
-any set of scenarios runs, as many at once as the table allows. Every port follows from the instance
+any set of scenarios runs, as many at once as there are instance numbers. Every port follows from the instance
 numbers (SITL's own; a detector's socket 14650 + N), so scenarios never collide. Each scenario writes its
 mission file (the Chicago Loop grid, frontier, no [knowledge] section), starts tools/sitl_detector.py for
 each vehicle given a detector, and runs fly; `during(flight)` is what happens meanwhile (kill an instance,
@@ -117,7 +117,7 @@ MIXED = [Craft("papa", PX4, (0, 0)), Craft("alpha", ARDUCOPTER, (2, 0)), Craft("
 
 
 class InstancePool:
-    """CONTRACTS' instance numbers, handed to one scenario at a time; a number another program's SITL
+    """The tests' SITL instance numbers, handed to one scenario at a time; a number another program's SITL
     holds (its ports bound, PX4's lock) is skipped."""
 
     def __init__(self) -> None:

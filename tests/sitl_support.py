@@ -3,7 +3,7 @@
 The binary comes from the environment variable ARDUPILOT_SITL (SWARMCTL_ARDUCOPTER, its older name, is
 read too), by default ../shared/sitl/arducopter beside the repository, with ArduPilot's copter.parm next
 to it; without it the tests are skipped with the reason. Each instance runs in a temporary folder of its
-own (a fresh one is fresh parameters), removed when it stops. Instance N (CONTRACTS' table: 0-4, system
+own (a fresh one is fresh parameters), removed when it stops. Instance N (the tests use 0-4, system
 id N+1) listens on TCP 5760+10N (SERIAL0; it waits for a client there before it boots), 5762+10N and
 5763+10N once booted.
 
@@ -32,7 +32,7 @@ SHARED = ROOT.parent / "shared"
 
 ARDUCOPTER_ENV = ("ARDUPILOT_SITL", "SWARMCTL_ARDUCOPTER")  # the first one set wins
 ARDUCOPTER_DEFAULT = SHARED / "sitl" / "arducopter"
-ARDUCOPTER_INSTANCES = tuple(range(5))  # CONTRACTS: ArduCopter -I 0-4 with --sysid 1-5
+ARDUCOPTER_INSTANCES = tuple(range(5))  # ArduCopter -I 0-4 with --sysid 1-5
 CHICAGO_HOME = (41.879653, -87.635357, 180.0, 0.0)  # lat, lon, alt AMSL, heading: the Chicago Loop take-off point
 
 STOP_GRACE_S = 5.0  # SIGTERM, then SIGKILL after this long
@@ -280,7 +280,7 @@ def arducopter_busy(instance: int) -> str | None:
 
 
 def free_arducopter_instances(count: int) -> list[int]:
-    """`count` instance numbers from CONTRACTS' table whose TCP ports nobody listens on."""
+    """`count` instance numbers of ARDUCOPTER_INSTANCES whose TCP ports nobody listens on."""
     free = [n for n in ARDUCOPTER_INSTANCES if arducopter_busy(n) is None]
     if len(free) < count:
         raise SitlError(

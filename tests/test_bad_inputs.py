@@ -587,7 +587,7 @@ CASES: list[tuple[str, list[str], str]] = [
     ("replay-buildings", [*REPLAY, "--buildings", "{tall.geojson}"], "tall"),
 ]
 
-# Through the real CLI, in a subprocess (CONTRACTS: about ten of them).
+# Through the real CLI, in a subprocess (about ten of them: each costs an interpreter start).
 SUBPROCESS = {
     "eval-seed-neg",
     "eval-memory-map",

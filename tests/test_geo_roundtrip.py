@@ -16,7 +16,7 @@ from swarmctl.geo.grid import make_grid
 from swarmctl.geo.projection import LocalProjection
 
 GEOD = pyproj.Geod(ellps="WGS84")
-SIDE = 5000.0  # metres: the "anywhere in a 5 km area"
+SIDE = 5000.0  # metres: anywhere in a 5 km area
 # (lon, lat) centres: equator, Chicago, 60 N (Helsinki), southern hemisphere (Western Cape), 70 S.
 CENTRES = [(0.0, 0.0), (-87.632384, 41.881895), (24.94, 60.17), (19.11, -34.11), (-60.0, -70.0)]
 FAST = settings(max_examples=150, deadline=None)

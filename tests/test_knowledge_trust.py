@@ -125,9 +125,9 @@ def test_on_the_bus_the_frames_that_leave_are_signed_and_strangers_never_deliver
 # ----- answers bounded per peer ------------------------------------------------------------------------
 @pytest.mark.parametrize("kind", KINDS)
 def test_no_kind_of_message_earns_twice_its_size_in_answers(kind):
-    """The forged DIGEST (34 bytes) and REQUEST of the issue, and the other kinds, one a round from a
-    sender claiming a member's index and sysid on an unsigned channel (the worst case: a stranger, or a
-    forger on a signed channel, gets nothing)."""
+    """The forged DIGEST (34 bytes) and REQUEST (x98 and x24 answered before the answer budget), and
+    the other kinds, one a round from a sender claiming a member's index and sysid on an unsigned
+    channel (the worst case: a stranger, or a forger on a signed channel, gets nothing)."""
     member = measure(kind, size=20, steps=20)
     assert member.received > 0 and member.ratio < 2.0, member
     if kind == "DIGEST":

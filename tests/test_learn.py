@@ -32,7 +32,7 @@ def test_network_layers_and_parameter_count_match_the_paper():
     assert shapes == [(20, 20, 20), (20, 17, 17), (20, 7, 7)]
     assert x.shape == (2, 980)
     assert [m.out_features for m in net.head if isinstance(m, torch.nn.Linear)] == [64, 5]
-    assert parameter_count(net) == 76_509  # ~76.5 k, as PAPER.md derives
+    assert parameter_count(net) == 76_509  # ~76.5 k, as the paper's operation counts give
 
 
 @settings(max_examples=50, deadline=None)

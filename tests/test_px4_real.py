@@ -2,7 +2,7 @@
 the reposition in both frames the SITL build takes, a refused frame answered without harm, knowledge
 frames on the vehicle's link, the speed parameters read, a landing.
 
-The harness (tests/px4_support.py) starts a free instance of CONTRACTS' table (-i 5-9, system id N+1) and
+The harness (tests/px4_support.py) starts a free instance of the tests' PX4 numbers (-i 5-9, system id N+1) and
 always stops it.
 """
 

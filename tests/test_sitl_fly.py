@@ -1,7 +1,7 @@
 """Whole missions through `swarmctl fly` against real ArduCopter and PX4 SITL (tests/sitl_fly.py).
 
 Every scenario the selected tests need is flown at once when the first of them asks (the `flights`
-fixture), each on instance numbers of its own from CONTRACTS' table, so the module's wall time is about
+fixture), each on instance numbers of its own, so the module's wall time is about
 that of its longest scenarios rather than their sum. ArduCopter runs at x5 (its timings scale exactly,
 docs/mavlink.md); the search is kept short (CI asserts >= 3 distinct cells per vehicle; the 90 s figure
 is tools/sitl_search.py's). Skipped with the reason when a binary is missing (ARDUPILOT_SITL, PX4_SITL).
@@ -29,7 +29,7 @@ from tests.sitl_fly import (
 pytestmark = pytest.mark.sitl
 
 HOME_M = 3.0  # "landed at home": within this of the home the autopilot reports (RTL lands 0.02-0.7 m off)
-MIN_CELLS = 3  # distinct cells per vehicle in CI's short search (CONTRACTS' CI budget)
+MIN_CELLS = 3  # distinct cells per vehicle in CI's short search (kept short for CI's time)
 FOV = 3  # the planners' sensing radius in cells (the mission's footprint)
 DDQL = "ddql:models/obstacles-3uav.pt:straggler=frontier"
 

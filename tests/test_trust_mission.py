@@ -19,7 +19,7 @@ from swarmctl.mavlink.codec import to_deg_e7
 from swarmctl.sim.swarm import SimSwarm
 from tests.mission_support import fly, our_threads, small_grid, wait_for
 
-ATTACKER = 42  # the sysid the spoofed setpoint came from
+ATTACKER = 42  # the sysid the spoofed setpoint comes from
 
 
 def events(folder) -> list[dict]:

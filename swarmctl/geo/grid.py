@@ -2,7 +2,7 @@
 
 Frame: the area's local transverse Mercator projection (`swarmctl.geo.projection`), in metres.
 The grid is a W x H block of square cells of side `cell` metres. Its x axis points east and y north
-(CONTRACTS: arrays are indexed [x, y], (0, 0) is the south-west cell), unless the grid is rotated to
+(arrays are indexed [x, y], (0, 0) is the south-west cell), unless the grid is rotated to
 the area's main axis, in which case x points `rotation` degrees counter-clockwise from east. The
 rotation is taken from the sides of the area's minimum rotated rectangle and folded into
 (-45, 45] degrees, so x stays the axis closest to east and y the one closest to north.

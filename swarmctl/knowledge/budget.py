@@ -2,7 +2,7 @@
 
 The pull protocol answers small messages with bigger ones (a 35-byte digest lacking a chunk draws the
 cells the receiver knows there, a request for a whole chunk draws up to 880 cells), so unbounded it
-amplifies whatever reaches the channel. Here (CONTRACTS.md, "Replies to digests and requests"):
+amplifies whatever reaches the channel. Here:
 
 - only mission members get answers (the exchange answers only messages `KnowledgeTrust.admit` took);
 - each member earns CREDIT (2) bytes of answers per byte received from it, any kind (a late joiner's

@@ -3,7 +3,7 @@
 `Knowledge` is the controller's view of the world (the simulator keeps the same state for B x U
 vehicles in arrays; this is the batch-of-one form): which cells are explored, their value phi and
 obstacle flag where explored, where each vehicle was last known to be, and the target cells reported
-by detections. Arrays are indexed [x, y] (CONTRACTS.md). Its state is one row of a
+by detections. Arrays are indexed [x, y]. Its state is one row of a
 swarmctl.knowledge.stack.KnowledgeStack: a stack of its own, or the one the agents of a ground-mode
 process share (merged for all of them at once).
 

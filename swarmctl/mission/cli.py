@@ -80,7 +80,7 @@ def view_options(func):
 @click.option(
     "--policy",
     default=None,
-    help=f"ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier or random. Default: "
+    help=f"ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower or random. Default: "
     f"ddql:{DEMO_MODEL}:straggler=frontier if that file exists and takes 20 x 20 observations, "
     "else frontier.",
 )

@@ -48,7 +48,7 @@ from swarmctl.knowledge.stack import NEVER
 from swarmctl.mission.inputs import InputsEncoder
 
 _TS = struct.Struct(">Q")
-TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (CONTRACTS: at least once a second)
+TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (at least once a second, so a crash loses under a second)
 # Event kinds that change what summary.json says: a running summary is rewritten after each of them.
 CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "end", "end_action", "end_action_failed"})
 

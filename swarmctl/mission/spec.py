@@ -261,7 +261,7 @@ class MissionTable(Table):
     )
     policy: str = setting(
         ...,
-        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier or random (PATH relative to the mission file)",
+        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower or random (PATH: from the mission file)",
         min_length=1,
         example="frontier",
     )

@@ -1,4 +1,4 @@
-"""The shared Q-network, exactly as the paper's operation counts pin it (PAPER.md).
+"""The shared Q-network, exactly as the paper's operation counts pin it.
 
     Conv(3 -> 20, 3x3, padding 1)  -> 20 x 20 x 20, ReLU
     Conv(20 -> 20, 4x4, stride 1)  -> 17 x 17 x 20, ReLU
@@ -122,7 +122,7 @@ def parameter_count(net: nn.Module) -> int:
 
 def forward_flops(window: int = 20, n_actions: int = 5, channels: int = 20, hidden: int = 64) -> int:
     """FLOPs of one forward pass for one observation (2 per multiply-add, biases and ReLUs left out):
-    4.88 M for F = 20 (PAPER.md)."""
+    4.88 M for F = 20 (the paper's count)."""
     side1, side2, side3 = window, window - 3, conv_output_side(window)
     macs = (
         side1 * side1 * channels * 3 * 3 * 3

@@ -55,7 +55,7 @@ from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.guard import REASONS, guard_moves
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
-TIE = 1e-4  # CONTRACTS: |delta Q| below this between the best moves is a tie
+TIE = 1e-4  # |delta Q| below this between the best moves is a tie
 
 
 @dataclass

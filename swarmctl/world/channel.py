@@ -1,6 +1,6 @@
 """Packet-error probability between two vehicles as a function of distance.
 
-Model (PAPER.md, CONTRACTS.md): air-to-air log-distance path loss with log-normal shadowing, after
+Model: air-to-air log-distance path loss with log-normal shadowing, after
 Liu et al. (IEEE Access 7:98832, 2019), Rayleigh small-scale fading, and an outage threshold for a
 rate-2/3 code:
 

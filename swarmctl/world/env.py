@@ -4,7 +4,7 @@
     obs = env.reset(seed=0)                       # (B, U, 3, F, F)
     obs, reward, success, info = env.step(actions)  # actions (B, U) in 0..4
 
-Semantics (PAPER.md, CONTRACTS.md): a move outside the map or into an obstacle leaves the vehicle
+Semantics (the paper's): a move outside the map or into an obstacle leaves the vehicle
 where it is (nu = 0, penalty theta); vehicles whose post-move cells coincide collide (penalty psi,
 no target reward); a swap is not a collision; a vehicle on a target cell without collision earns
 +1. Success at step t: after the t-th joint move every vehicle is on a target and no two share a

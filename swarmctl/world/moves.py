@@ -1,6 +1,6 @@
 """The five grid moves, in the paper's order. One table shared by simulator, planners and controller.
 
-Axes (CONTRACTS): cell (x, y), x grows east, y grows north, (0, 0) is the south-west cell.
+Axes: cell (x, y), x grows east, y grows north, (0, 0) is the south-west cell.
 """
 
 from functools import lru_cache
