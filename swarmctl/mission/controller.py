@@ -126,6 +126,10 @@ class Controller:
             self.outcome = "interrupted"
             await asyncio.shield(self._finish_safely())
             raise
+        except Exception:  # a bug: the vehicles in the air still get their end action before it is raised
+            self.outcome = "failed"
+            await self._finish_safely()
+            raise
         await self._finish_safely()
         if self.mission_error is not None:
             raise self.mission_error  # bad input found while flying: the mission file must change
@@ -304,6 +308,10 @@ class Controller:
         except (TimeoutError, MavlinkError) as exc:
             a.end_state = f"end action failed: {exc}"
             self.rec.event("end_action_failed", vehicle=a.name, error=str(exc))
+        except Exception as exc:  # one vehicle's unexpected error must not cut the others' end actions short
+            a.end_state = f"end action failed: unexpected {type(exc).__name__}: {exc}"
+            log.error("%s: %s", a.name, a.end_state)
+            self.rec.event("end_action_failed", vehicle=a.name, error=f"{type(exc).__name__}: {exc}")
         self.enter(a, State.ENDED, end_state=a.end_state)
 
     async def _close(self) -> None:

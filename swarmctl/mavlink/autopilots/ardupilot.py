@@ -53,6 +53,14 @@ KEEP_TELEMETRY_S = 1.0  # how often the driver looks for telemetry that is overd
 _WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
 
+def whole_parameter(name: str, value: float, vehicle: str) -> int:
+    """A parameter that holds a whole number (a bit mask, an enum), as an int; MavlinkError when the
+    vehicle answered something else (NaN, infinity, a fraction: not a value ArduPilot sends)."""
+    if not math.isfinite(value) or value != int(value):
+        raise MavlinkError(f"{vehicle}: {name} reads as {value}, not a whole number")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class Stream:
     """A telemetry message the driver asks for with SET_MESSAGE_INTERVAL."""
@@ -408,8 +416,12 @@ class ArduPilotVehicle(Vehicle):
         await self.wait_ready(left())  # GUIDED and ready
         await self.arm(min(30.0, left()))
         await self.takeoff(rel_alt)
+        # a report of 0, 0 (no position) can come between the ready check and now, from the vehicle or
+        # in its name: wait for a real one instead of failing on it
+        await self._poll(lambda: self.position is not None, left(), "a position report after take-off")
         pos = self.position
-        assert pos is not None
+        if pos is None:  # _poll returned on it: for the type checker
+            raise MavlinkError(f"{self.name}: no position report after take-off")
         self.target = Target(pos.lat, pos.lon, rel_alt)
         await self._poll(
             lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt,
@@ -493,7 +505,7 @@ class ArduPilotVehicle(Vehicle):
         the polygon (the vehicle would breach it inside the search area). swarmctl never changes these
         parameters itself."""
         read = self.read_parameter
-        fence_type = int(await read("FENCE_TYPE"))
+        fence_type = whole_parameter("FENCE_TYPE", await read("FENCE_TYPE"), self.name)
         if not fence_type & 4:
             raise MavlinkError(
                 f"{self.name}: FENCE_TYPE is {fence_type}, without the polygon (4): the vehicle "
@@ -503,6 +515,8 @@ class ArduPilotVehicle(Vehicle):
         if fence_type & 2 and home is not None:
             radius = await read("FENCE_RADIUS")
             reach = farthest_metres(vertices, home.lat, home.lon)
+            if not math.isfinite(radius):
+                raise MavlinkError(f"{self.name}: FENCE_RADIUS reads as {radius}, not a number of metres")
             if radius < reach:
                 raise MavlinkError(
                     f"{self.name}: FENCE_RADIUS is {radius:g} m but the fence reaches {reach:.0f} m from home, so "

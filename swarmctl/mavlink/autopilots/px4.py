@@ -378,8 +378,10 @@ class PX4Vehicle(Vehicle):
         got = await self._call("get_takeoff_altitude", self.action.get_takeoff_altitude)
         if got is None or abs(float(got) - rel_alt) > 0.1:
             raise MavlinkError(f"{self.name}: take-off altitude reads back as {got}, not {rel_alt:g} m")
+        await self._poll(lambda: self._position is not None, left(), "a position report before take-off")
         pos = self._position
-        assert pos is not None
+        if pos is None:  # _poll returned on it: for the type checker
+            raise MavlinkError(f"{self.name}: no position report before take-off")
         self.target = Target(pos.lat, pos.lon, rel_alt)
         climbed = lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt  # noqa: E731
         # A loaded SITL sometimes takes the take-off and then disarms on the ground in HOLD (its
