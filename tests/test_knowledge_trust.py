@@ -16,9 +16,17 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.knowledge.amplification import KINDS, measure
 from swarmctl.knowledge.bus import KnowledgeBus
 from swarmctl.knowledge.codec import KnowledgeCodec
-from swarmctl.knowledge.exchange import KnowledgeExchange
-from swarmctl.knowledge.model import Delta, Detection, Knowledge
-from swarmctl.knowledge.trust import FOOTPRINT_SLACK, SPEED_SLACK, KnowledgeTrust
+from swarmctl.knowledge.exchange import DATAGRAM_PARSE, POLL_BYTES, READ_BATCH, KnowledgeExchange
+from swarmctl.knowledge.model import Delta, Detection, Knowledge, disc_cells
+from swarmctl.knowledge.trust import (
+    FIRST_AHEAD,
+    FOOTPRINT_SLACK,
+    SPEED_SLACK,
+    STEP_AHEAD,
+    STEP_RATE,
+    STEP_RATE_S,
+    KnowledgeTrust,
+)
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.mavlink.transport import MAX_SOURCES
 from swarmctl.sim.radio import Radio
@@ -43,7 +51,7 @@ def test_only_members_with_their_system_ids_are_taken(caplog):
         assert not trust.admit(delta(1, 1, (0, 0)), sysid=42)
         assert trust.admit(delta(1, 1, (0, 0)), sysid=2)
         assert trust.admit(delta(2, 1, (5, 5)), sysid=None)  # the frame's sysid unknown: the index decides
-    assert trust.counters() == {"member": 2, "sysid": 1, "speed": 0, "footprint": 0}
+    assert trust.counters() == {"member": 2, "sysid": 1, "step": 0, "speed": 0, "footprint": 0}
     assert len(caplog.records) == 2  # once per reason
     assert not trust.is_member(7) and trust.is_member(1)
 
@@ -56,6 +64,7 @@ def test_only_members_with_their_system_ids_are_taken(caplog):
 )
 def test_a_position_is_taken_only_as_far_as_a_vehicle_can_fly(start, jump, steps):
     trust = KnowledgeTrust(MEMBERS)
+    trust.advance(20)  # the receiver's own step
     assert trust.admit(delta(1, 20, start), sysid=2)
     to = (start[0] + jump[0], start[1] + jump[1])
     reachable = abs(jump[0]) + abs(jump[1]) <= abs(steps) + SPEED_SLACK
@@ -75,6 +84,127 @@ def test_a_detection_is_taken_only_inside_the_senders_footprint(at, offsets, fov
     inside = all(np.hypot(dx, dy) <= fov + FOOTPRINT_SLACK for dx, dy in offsets)
     assert trust.admit(Detection(0, 5, at, False, targets), sysid=1) == inside
     assert not trust.admit(Detection(0, 6, None, False, targets), sysid=1)  # from nowhere: never
+
+
+def cells_delta(sender: int, step: int, cell, cells, repair: bool = False) -> Delta:
+    c = np.asarray(cells, np.int64).reshape(-1, 2)
+    return Delta(sender, step, cell, False, c, np.full(len(c), 255, np.uint8), np.ones(len(c), bool), repair)
+
+
+def test_a_step_from_the_future_is_refused_and_pins_nothing():
+    """The audit's attack: a step of 2^32 - 1 allowed a 90-cell jump and pinned the position for good."""
+    trust = KnowledgeTrust(MEMBERS, fov=2.0, clock=lambda: 0.0)
+    trust.advance(10)
+    assert trust.admit(delta(1, 10, (0, 0)), sysid=2)
+    assert not trust.admit(Detection(1, 2**32 - 1, (45, 45), True, np.array([[45, 45]])), sysid=2)
+    assert not trust.admit(delta(1, 10 + STEP_AHEAD + 1, (0, 1)), sysid=2)  # past the credit: refused too
+    assert not trust.admit(delta(2, 10 + FIRST_AHEAD + 1, (9, 9)), sysid=3)  # not heard yet: past now + FIRST_AHEAD
+    assert trust.counters()["step"] == 3
+    for s in range(11, 21):  # the real vehicle goes on, stepping with the receiver
+        trust.advance(s)
+        assert trust.admit(delta(1, s, (s - 10, 0)), sysid=2)
+    assert not trust.admit(Detection(1, 21, (30, 10), False, np.array([[30, 10]])), sysid=2)  # speed still on
+    assert trust.counters() == {"member": 0, "sysid": 0, "step": 3, "speed": 1, "footprint": 0}
+
+
+@settings(max_examples=200, deadline=None)
+@given(now=st.integers(0, 1000), leads=st.lists(st.integers(0, 40), min_size=1, max_size=8), waits=st.integers(0, 6))
+def test_a_sender_never_leads_the_receiver_by_more_than_its_credit(now, leads, waits):
+    """Whatever the steps claimed, a sender's accepted steps lead the receiver's own by at most STEP_AHEAD
+    plus STEP_RATE per step the receiver made since it first heard it."""
+    trust = KnowledgeTrust(MEMBERS, clock=lambda: 0.0)
+    trust.advance(now)
+    assert trust.admit(delta(1, now, None), sysid=2)  # first heard (a first message may lead by FIRST_AHEAD)
+    first = now
+    step = now
+    for lead in leads:
+        step += lead
+        if trust.admit(delta(1, step, None), sysid=2):
+            assert step <= first + STEP_AHEAD + STEP_RATE * (trust.now - first)
+        else:
+            step -= lead
+    trust.advance(now + waits)
+    assert not trust.admit(delta(1, now + waits + STEP_AHEAD + STEP_RATE * waits + 1, None), sysid=2)
+    assert trust.admit(delta(1, step, None), sysid=2)  # the newest step again: always taken
+
+
+def test_an_old_step_is_checked_against_the_positions_around_it():
+    trust = KnowledgeTrust(MEMBERS, fov=2.0)
+    trust.advance(20)
+    for s in range(10, 21):
+        assert trust.admit(delta(1, s, (s - 10, 0)), sysid=2)
+    # a find repeated with the step and cell it was made from: taken
+    assert trust.admit(Detection(1, 15, (5, 0), False, np.array([[5, 1]])), sysid=2)
+    # step 15 "at (0, 10)": 10 cells from the step-15 position heard (before: 15 cells allowed from step 20)
+    assert not trust.admit(Detection(1, 15, (0, 10), False, np.array([[0, 10]])), sysid=2)
+    # step 0 "at (8, 8)": 16 cells from the first position heard, at step 10 (before: 22 allowed from step 20)
+    assert not trust.admit(Detection(1, 0, (8, 8), False, np.array([[8, 8]])), sysid=2)
+    assert trust.counters()["speed"] == 2
+
+
+def test_a_delta_carries_only_cells_its_sender_can_have_sensed():
+    """The audit's attack: one DELTA (repair flag or not) from a position next to the real one marked every
+    cell explored, a target and an obstacle."""
+    trust = KnowledgeTrust(MEMBERS, fov=2.0)
+    trust.advance(10)
+    trust.own(0, 10, (25, 25))
+    assert trust.admit(delta(1, 10, (0, 0)), sysid=2)
+    everything = [(x, y) for x in range(50) for y in range(50)]
+    for repair in (False, True):
+        parts = cells_delta(1, 11, (1, 0), everything, repair).split(36)
+        assert not any(trust.admit(p, sysid=2) for p in parts)
+    assert trust.counters()["footprint"] == 2 * len(parts)
+    assert trust.admit(cells_delta(1, 11, (1, 0), disc_cells((1, 0), 50, 50, 2.0)), sysid=2)  # its own footprint
+    assert not trust.admit(cells_delta(1, 12, (1, 1), [(25, 25)]), sysid=2)  # not its own: refused ...
+    assert trust.admit(cells_delta(1, 12, (1, 1), [(25, 25)], repair=True), sysid=2)  # ... a repair may carry it
+    assert not trust.admit(cells_delta(1, 12, (1, 1), [(40, 5)], repair=True), sysid=2)  # nobody was near
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    start=st.tuples(st.integers(0, 40), st.integers(0, 40)),
+    moves=st.lists(st.sampled_from([(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1)]), min_size=1, max_size=8),
+    heard=st.lists(st.booleans(), min_size=8, max_size=8),
+    fov=st.sampled_from([1.0, 2.0, 3.0]),
+)
+def test_an_honest_delta_of_unpublished_steps_is_taken(start, moves, heard, fov):
+    """A vehicle that sensed at every cell of its walk but whose positions were heard only at some steps
+    (lost messages, steps it did not publish) sends all the cells at the end: they are taken."""
+    trust = KnowledgeTrust(MEMBERS, fov=fov)
+    trust.advance(5 + len(moves))
+    cell = start
+    assert trust.admit(delta(1, 5, cell), sysid=2)
+    sensed = [disc_cells(cell, 50, 50, fov)]
+    for i, (dx, dy) in enumerate(moves):
+        cell = (min(max(cell[0] + dx, 0), 49), min(max(cell[1] + dy, 0), 49))
+        sensed.append(disc_cells(cell, 50, 50, fov))
+        if heard[i] and i < len(moves) - 1:
+            assert trust.admit(delta(1, 6 + i, cell), sysid=2)
+    cells = np.unique(np.concatenate(sensed), axis=0)
+    assert trust.admit(cells_delta(1, 5 + len(moves), cell, cells), sysid=2)
+
+
+def test_one_poll_reads_a_bounded_batch():
+    """The audit's flood: 65 KB datagrams of HEARTBEATs kept one poll(0.0) busy 8.56 s of CPU."""
+    mav = mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
+    hb = bytes(mavlink2.MAVLink_heartbeat_message(0, 0, 0, 0, 0, 0).pack(mav))
+    big = hb * (65000 // len(hb))
+    ex = KnowledgeExchange(Knowledge(10, 10, 0), 7, ("127.0.0.1", 9), members=MEMBERS, fov=2.0)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(12):
+                s.sendto(big, ex.address)
+            for _ in range(3 * READ_BATCH):
+                s.sendto(hb, ex.address)
+        n = ex.poll(0.5)
+        assert n == POLL_BYTES // DATAGRAM_PARSE  # the rest waits for the next poll
+        assert ex.codec.ignored["HEARTBEAT"] <= POLL_BYTES // len(hb) + 1
+        assert ex.rejections()["datagram"] == n
+        while ex.poll(0.2):
+            pass
+        assert ex.stats["received_packets"] == 12 + 3 * READ_BATCH  # every datagram read in the end
+    finally:
+        ex.close()
 
 
 # ----- signed knowledge ------------------------------------------------------------------------------
@@ -212,3 +342,29 @@ def test_udpin_answers_only_the_most_recent_sources_that_sent_valid_frames():
 
     peers, addresses = run(scenario())
     assert peers == set(addresses[-MAX_SOURCES:])  # the most recent; junk (the first 50) earns no answers
+
+
+def test_a_sender_that_fell_behind_its_credit_is_believed_again():
+    """A receiver that does not step (in preflight) while a sender steps on: the sender's steps run past
+    the credit and are refused, then taken again as the receiver's clock gives credit back."""
+    seconds = [0.0]
+    trust = KnowledgeTrust(MEMBERS, clock=lambda: seconds[0])
+    assert trust.admit(delta(1, 0, None), sysid=2)
+    taken = []
+    for step in range(1, 200):  # the sender at 10 steps a second, the receiver at step 0
+        seconds[0] = step / 10
+        taken.append(trust.admit(delta(1, step, None), sysid=2))
+    assert not all(taken)  # faster than the credit comes back: some refused
+    for step in range(200, 260):  # the sender at 4 steps a second, slower than STEP_RATE_S
+        seconds[0] += 0.25
+        taken.append(trust.admit(delta(1, step, None), sysid=2))
+    assert all(taken[-20:])
+    assert STEP_RATE_S > 4
+
+
+def test_a_late_agent_hears_senders_far_ahead_of_it():
+    trust = KnowledgeTrust(MEMBERS, clock=lambda: 0.0)
+    trust.advance(3)  # started late: the others are at step 300
+    assert trust.admit(delta(1, 300, None), sysid=2)
+    trust.advance(4)
+    assert trust.admit(delta(1, 301, None), sysid=2)

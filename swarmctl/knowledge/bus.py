@@ -132,6 +132,7 @@ class KnowledgeBus:
             message = self._codec.decode(payload_type, payload)
         if message is None:  # never for a member's own encoding; counted in the bus codec's rejections
             return 0
+        self.trust.advance(sender._now)  # the publisher's step: the bus's own (ground mode: lock-step)
         if not self.trust.admit(message, sender.system_id):  # counted in trust.rejected, delivered to no one
             return 0
         kind = KIND_NAMES[payload_type]

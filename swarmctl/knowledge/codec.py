@@ -215,6 +215,7 @@ class KnowledgeCodec:
         raise TypeError(f"cannot encode a {type(message).__name__}")
 
     def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes, Delta]]:
+        repair = repair or delta.repair
         cells = delta.cells
         if cells.size and (
             (cells < 0).any() or (cells[:, 0] >= self.width).any() or (cells[:, 1] >= self.height).any()
@@ -228,6 +229,8 @@ class KnowledgeCodec:
         body["phi"] = delta.phi
         raw = body.tobytes()
         parts = delta.split(MAX_DELTA_CELLS)
+        if repair and not delta.repair:  # what decoding gives back: the repair flag set
+            parts = [Delta(p.sender, p.step, p.cell, p.on_target, p.cells, p.phi, p.obstacle, True) for p in parts]
         out = []
         for i, part in enumerate(parts):
             # chunks stand alone; past 255 of them the numbering starts a new group of up to 255
@@ -345,7 +348,7 @@ class KnowledgeCodec:
         on_target = bool(flags & FLAG_ON_TARGET)
         body = data[HEADER_SIZE:n]
         if payload_type == PT_DELTA:
-            msg = self._decode_delta(body, sender, step, cell, on_target, chunks)
+            msg = self._decode_delta(body, sender, step, cell, on_target, chunks, bool(flags & FLAG_REPAIR))
         elif payload_type == PT_DETECTION:
             msg = self._decode_detection(body, sender, step, cell, on_target)
         else:
@@ -357,7 +360,7 @@ class KnowledgeCodec:
             self.last_repair = bool(flags & FLAG_REPAIR)
         return msg
 
-    def _decode_delta(self, body: bytes, sender, step, cell, on_target, chunks) -> Delta | None:
+    def _decode_delta(self, body: bytes, sender, step, cell, on_target, chunks, repair: bool) -> Delta | None:
         if chunks > self.max_delta_chunks:
             return self._reject("chunks", f"{chunks} delta chunks for {self.width * self.height} cells")
         if not body or len(body) != 1 + 3 * body[0] or body[0] > MAX_DELTA_CELLS:
@@ -368,7 +371,7 @@ class KnowledgeCodec:
             return self._reject("cell", "delta cell outside the grid")
         cells = np.empty((len(idx), 2), dtype=np.int64)
         np.divmod(idx, self.height, out=(cells[:, 0], cells[:, 1]))
-        return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), rec["cell"] >= 0x8000)
+        return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), rec["cell"] >= 0x8000, repair)
 
     def _decode_detection(self, body: bytes, sender, step, cell, on_target) -> Detection | None:
         if not body or body[0] == 0 or body[0] > MAX_DETECTIONS or len(body) != 1 + 2 * body[0]:

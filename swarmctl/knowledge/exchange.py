@@ -31,7 +31,8 @@ Every message carries the sender's position; positions merge newest-step-wins.
 
 Trust (docs/security.md): with `signing_key` every frame is MAVLink 2 signed and only frames signed
 with the key are read; every message passes `KnowledgeTrust.admit` (mission members only, with their
-system ids; positions no faster than a vehicle flies; detections inside the sender's footprint) before
+system ids; steps not far ahead of its own; positions no faster than a vehicle flies; detections and
+delta cells where the sender can have sensed them) before
 it is merged, and answers to digests and requests are bounded per peer (swarmctl.knowledge.budget).
 
 Concurrency: none of its own. The owner calls `poll` (from its loop, or, on UDP, when `fileno()` is
@@ -64,6 +65,11 @@ log = logging.getLogger("swarmctl.knowledge")
 Address = tuple[str, int]
 NEVER = np.iinfo(np.int64).max
 RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
+# what one poll reads at most (the rest waits in the socket for the next poll, as the vehicle links'
+# drains do: swarmctl.mavlink.inbox), so a flood cannot hold up the caller's loop
+READ_BATCH = 64  # datagrams
+DATAGRAM_PARSE = 8192  # bytes parsed of one datagram (a knowledge frame is at most 160); the rest dropped
+POLL_BYTES = 65536  # bytes parsed in all
 
 
 class KnowledgeExchange:
@@ -222,6 +228,7 @@ class KnowledgeExchange:
     def _publish(self, step: int, delta: Delta) -> None:
         """`publish` with the delta taken already (swarmctl.knowledge.stepping takes all agents' at once)."""
         self._now = max(self._now, int(step))
+        self.trust.own(self.vehicle_id, delta.step, delta.cell)  # the receiver's step and track (trust)
         self.budget.period(self._now // max(self.digest_every, 1))
         self._send(delta)
         self.stats["deltas"] += 1
@@ -258,13 +265,16 @@ class KnowledgeExchange:
         self._inbox.append((message, kind, size))
 
     def poll(self, timeout: float = 0.0) -> int:
-        """Handle every datagram (UDP) or delivery (bus) waiting, waiting on UDP up to `timeout` s for the
-        first. Returns how many."""
+        """Handle the datagrams (UDP) or deliveries (bus) waiting, waiting on UDP up to `timeout` s for the
+        first. Returns how many. On UDP at most READ_BATCH datagrams and POLL_BYTES parsed (DATAGRAM_PARSE
+        of each: the rest of a longer datagram is dropped, counted as `datagram`); the rest waits for the
+        next poll."""
         if self.bus is not None:
             return self._poll_bus()
         handled = 0
+        parsed = 0
         wait = timeout
-        while True:
+        while handled < READ_BATCH and parsed < POLL_BYTES:
             if wait > 0:
                 ready, _, _ = select.select([self.sock], [], [], wait)
                 if not ready:
@@ -279,11 +289,18 @@ class KnowledgeExchange:
             handled += 1
             self.stats["received_packets"] += 1
             self.stats["received_bytes"] += len(data)
+            if len(data) > DATAGRAM_PARSE:
+                self.codec._reject(
+                    "datagram", f"{len(data)} bytes: the {len(data) - DATAGRAM_PARSE} past {DATAGRAM_PARSE}"
+                )
+                data = data[:DATAGRAM_PARSE]
+            parsed += len(data)
             for message, sysid, size in self.codec.parse_frames(data):
                 if message.sender == self.vehicle_id:
                     self.stats["own_echo"] += 1
                 elif self.trust.admit(message, sysid):
                     self._handle(message, size)
+        return handled
 
     def _poll_bus(self) -> int:
         handled = self.bus.collect(self)  # a stacked ideal bus merges every member's deliveries at once
@@ -356,7 +373,7 @@ class KnowledgeExchange:
 
     def rejections(self) -> dict[str, int]:
         """Messages dropped so far, by reason: the codec's (bad bytes, `signature`) and the trust
-        checks' (`member`, `sysid`, `speed`, `footprint`)."""
+        checks' (`member`, `sysid`, `step`, `speed`, `footprint`)."""
         out = Counter(self.codec.rejected)
         out.update(self.trust.rejected)
         return dict(out)

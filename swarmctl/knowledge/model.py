@@ -114,17 +114,21 @@ class Report:
 @dataclass(eq=False)
 class Delta(Report):
     """Cells explored by `sender` (with their quantised phi and obstacle flag) and the sender's
-    position at `step`. A delta with no cells is a position report."""
+    position at `step`. A delta with no cells is a position report. `repair`: an answer to a digest or
+    a request (the frame's repair flag), whose cells may be any the sender knows; otherwise the cells
+    are the sender's own (what the trust checks place: swarmctl.knowledge.trust). Not compared."""
 
     cells: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=np.int64))
     phi: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.uint8))
     obstacle: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    repair: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         self.cells = _cells_array(self.cells)
         self.phi = np.asarray(self.phi, dtype=np.uint8).reshape(-1)
         self.obstacle = np.asarray(self.obstacle, dtype=bool).reshape(-1)
+        self.repair = bool(self.repair)
         if not len(self.cells) == len(self.phi) == len(self.obstacle):
             raise ValueError("Delta: cells, phi and obstacle must have the same length")
 
@@ -152,6 +156,7 @@ class Delta(Report):
                 self.cells[i : i + max_cells],
                 self.phi[i : i + max_cells],
                 self.obstacle[i : i + max_cells],
+                self.repair,
             )
             for i in range(0, len(self), max_cells)
         ]
@@ -168,6 +173,7 @@ class Delta(Report):
             np.concatenate([p.cells for p in parts]),
             np.concatenate([p.phi for p in parts]),
             np.concatenate([p.obstacle for p in parts]),
+            first.repair,
         )
 
 
