@@ -13,6 +13,7 @@ $(BIN)/swarmctl: pyproject.toml constraints.txt
 	touch $(BIN)/swarmctl
 
 demo: $(BIN)/swarmctl
+	rm -rf runs/demo.previous; if [ -d runs/demo ]; then mv runs/demo runs/demo.previous; fi  # the last run is kept
 	$(BIN)/swarmctl demo --uavs 3 --seed 0 --out runs/demo
 
 test: $(BIN)/swarmctl

@@ -171,8 +171,11 @@ def writable_folder(folder: Path, option: str) -> Path:
     """Check, before any work, that `folder` is or can be made a folder files can be written in. Nothing
     is created: the nearest folder that exists is probed with a temporary file."""
     existing = folder
-    while not existing.exists() and existing != existing.parent:
-        existing = existing.parent
+    try:
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+    except OSError as exc:  # a name too long, a loop of links
+        raise InputError(f"{option} {folder}: {exc.strerror or exc}; give another folder") from None
     if not existing.is_dir():
         where = "" if existing == folder else f" ({existing} is a file)"
         raise InputError(f"{option} {folder}: a file is in the way{where}; give a folder")
@@ -187,10 +190,32 @@ def writable_folder(folder: Path, option: str) -> Path:
 
 
 def writable_file(path: Path, option: str) -> Path:
-    """Check, before any work, that the output file `path` can be written (nothing is created)."""
-    if path.is_dir():
-        raise InputError(f"{option} {path}: is a folder; give a file name in it")
-    writable_folder(path.parent, option)
-    if path.exists() and not os.access(path, os.W_OK):
-        raise InputError(f"{option} {path}: the file cannot be overwritten; give another path")
+    """Check, before any work, that the output file `path` can be written (nothing is created): a new
+    file, or a regular file that may be overwritten (never a device or a pipe)."""
+    try:
+        if path.is_dir():
+            raise InputError(f"{option} {path}: is a folder; give a file name in it")
+        writable_folder(path.parent, option)
+        if path.exists():
+            if not path.is_file():
+                raise InputError(f"{option} {path}: is not a regular file (a device or a pipe); give a file path")
+            if not os.access(path, os.W_OK):
+                raise InputError(f"{option} {path}: the file cannot be overwritten; give another path")
+    except OSError as exc:  # a name too long, a loop of links
+        raise InputError(f"{option} {path}: {exc.strerror or exc}; give another path") from None
     return path
+
+
+RECORDING_MARK = "events.jsonl"  # every recording folder has it from its first moment
+
+
+def new_recording_folder(folder: Path, option: str) -> Path:
+    """`writable_folder`, and not a folder that already holds a recording (whose files would be
+    overwritten)."""
+    writable_folder(folder, option)
+    if (folder / RECORDING_MARK).exists():
+        raise InputError(
+            f"{option} {folder}: already holds a recording ({RECORDING_MARK}); give another folder, or "
+            "move that recording away first"
+        )
+    return folder

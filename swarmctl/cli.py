@@ -48,6 +48,11 @@ def main(argv: list[str] | None = None) -> int:
     except InputError as exc:
         click.echo(f"swarmctl: error: {one_line(str(exc))}", err=True)
         return EXIT_BAD_INPUT
+    except OSError as exc:  # a file no check foresaw could not be read or written: a full disk, a name too long
+        where = f"{exc.filename}: " if exc.filename else ""
+        text = one_line(f"{where}{exc.strerror or exc}")
+        click.echo(f"swarmctl: error: {text}; check the path, its permissions and the free space", err=True)
+        return EXIT_BAD_INPUT
     except click.exceptions.NoArgsIsHelpError as exc:  # `swarmctl` alone: the help
         exc.show()
         return exc.exit_code

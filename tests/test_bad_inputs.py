@@ -273,6 +273,12 @@ def files(tmp_path_factory) -> dict[str, Path]:
     f["emptyrec"] = d / "emptyrec"
     f["sitl"] = SITL_LOG
     f["recording"] = RECORDING
+    (d / "earlier-run").mkdir()  # a recording folder an output must not overwrite
+    text("earlier-run/events.jsonl", '{"t": 1.0, "event": "mission"}\n')
+    f["earlier-run"] = d / "earlier-run"
+    f["fifo"] = d / "fifo"
+    os.mkfifo(f["fifo"])
+    f["long"] = d / ("a" * 5000)  # longer than any file name may be
     return f
 
 
@@ -483,6 +489,14 @@ CASES: list[tuple[str, list[str], str]] = [
     ("plan-unknown-rule", [*PLAN, "--unknown-height", "guess"], "--unknown-height"),
     ("plan-out-under-file", ["plan", "{area.geojson}", "--out", "{under-file}"], "--out"),
     ("plan-out-is-file", ["plan", "{area.geojson}", "--out", "{afile}"], "--out"),
+    ("plan-out-recording", ["plan", "{area.geojson}", "--out", "{earlier-run}"], "already holds a recording"),
+    ("plan-area-long-name", ["plan", "{long}.geojson", "--out", "{out}/plan"], "File name too long"),
+    ("demo-out-recording", ["demo", "--mission", "{mission}", "--out", "{earlier-run}"], "already holds a recording"),
+    ("train-out-fifo", ["train", "--out", "{fifo}", "--episodes", "1"], "not a regular file"),
+    ("train-out-long-name", ["train", "--out", "{long}.pt", "--episodes", "1"], "File name too long"),
+    ("eval-json-fifo", [*EVAL, "--json", "{fifo}"], "not a regular file"),
+    ("replay-long-name", ["replay", "{long}"], "File name too long"),
+    ("replay-out-long-name", [*REPLAY[:2], "--out", "{long}", "--quiet"], "File name too long"),
     # demo
     ("demo-uavs-0", [*DEMO, "--uavs", "0"], "--uavs"),
     ("demo-uavs-51", [*DEMO, "--uavs", "51"], "--uavs"),

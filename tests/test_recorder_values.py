@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmctl.mission.agent import State
-from swarmctl.mission.recorder import _jsonable
+from swarmctl.mission.recorder import Recorder, _jsonable
 
 
 def _rules(value):
@@ -55,3 +55,23 @@ values = st.recursive(
 @given(values)
 def test_json_values_follow_the_rules(value):
     assert json.dumps(_jsonable(value)) == json.dumps(_rules(value))
+
+
+def test_a_recording_in_the_mission_folder_keeps_the_mission_and_grid_files(tmp_path):
+    """`demo --mission m/mission.toml --out m`: the files already in place are not copied onto themselves."""
+    mission, grid = tmp_path / "mission.toml", tmp_path / "grid.npz"
+    mission.write_text('[mission]\nname = "m"\n')
+    grid.write_bytes(b"grid bytes")
+    rec = Recorder(tmp_path)
+    try:
+        rec.copy_inputs(mission, grid)
+    finally:
+        rec.close()
+    assert mission.read_text() == '[mission]\nname = "m"\n' and grid.read_bytes() == b"grid bytes"
+    elsewhere = tmp_path / "elsewhere"
+    rec = Recorder(elsewhere)
+    try:
+        rec.copy_inputs(mission, grid)
+    finally:
+        rec.close()
+    assert (elsewhere / "mission.toml").read_text() == mission.read_text()

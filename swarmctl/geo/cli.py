@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from swarmctl.bounds import real, whole, writable_folder
+from swarmctl.bounds import new_recording_folder, real, whole
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import (
     DEFAULT_ALTITUDE,
@@ -109,7 +109,7 @@ def plan_command(
     """
     if not margin < altitude:
         raise InputError(f"--margin {margin:g}: the safety margin must be below --altitude ({altitude:g} m)")
-    writable_folder(out_dir, "--out")
+    new_recording_folder(out_dir, "--out")  # a recording's grid.npz is its own: never replaced
     from swarmctl.geo.areas import load_area
     from swarmctl.geo.buildings import BuildingRule, load_buildings
     from swarmctl.geo.export import write_grid_geojson

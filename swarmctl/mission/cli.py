@@ -14,7 +14,7 @@ from typing import Any
 import click
 
 import swarmctl
-from swarmctl.bounds import SEED, real, whole, writable_folder
+from swarmctl.bounds import SEED, new_recording_folder, real, whole
 from swarmctl.errors import EXIT_FAILED, InputError
 from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, TimingTable
 from swarmctl.world.config import CHANNELS
@@ -50,9 +50,10 @@ def default_policy(seed: int = 0) -> tuple[Any, str | None]:
 
 
 def _out_folder(out: Path | None, name: str) -> Path:
-    """The recording folder (--out, or runs/NAME-TIME), checked to be writable before anything flies."""
+    """The recording folder (--out, or runs/NAME-TIME), checked to be writable and to hold no recording
+    before anything flies."""
     folder = out if out is not None else Path("runs") / f"{name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    return writable_folder(folder, "--out")
+    return new_recording_folder(folder, "--out")
 
 
 def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:

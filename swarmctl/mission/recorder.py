@@ -109,6 +109,11 @@ def summary_text(value: Any, depth: int = 2, indent: str = "") -> str:
     return "[\n" + ",\n".join(items) + "\n" + indent + "]"
 
 
+def _copy(source: Path, target: Path) -> None:
+    if not (target.exists() and os.path.samefile(source, target)):
+        shutil.copyfile(source, target)
+
+
 class Recorder:
     """Writes the mission folder; every method is safe to call from the loop and from link threads."""
 
@@ -305,10 +310,12 @@ class Recorder:
 
     # --- files -----------------------------------------------------------------------------------------
     def copy_inputs(self, mission_file: Path | None, grid_file: Path | None, grid: Any = None) -> None:
+        """The mission file and the grid beside the recording (a file already in its place, as when the
+        recording folder is the mission's own, is left as it is)."""
         if mission_file is not None and Path(mission_file).is_file():
-            shutil.copyfile(mission_file, self.folder / "mission.toml")
+            _copy(Path(mission_file), self.folder / "mission.toml")
         if grid_file is not None and Path(grid_file).is_file():
-            shutil.copyfile(grid_file, self.folder / "grid.npz")
+            _copy(Path(grid_file), self.folder / "grid.npz")
         elif grid is not None:
             grid.save(self.folder / "grid.npz")
 
