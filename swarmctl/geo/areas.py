@@ -4,7 +4,8 @@ An `Area` is the polygon(s) to search, in WGS84 lon/lat, plus its no-fly zones. 
 
 - GeoJSON (RFC 7946, lon/lat): Polygon, MultiPolygon, Feature, FeatureCollection, GeometryCollection.
   Every polygon is part of the area, except features whose properties set ``"nofly": true``
-  (also ``"no_fly"`` / ``"no-fly"``), which are no-fly zones.
+  (also ``"no_fly"`` / ``"no-fly"``; 1, "true", "yes" and "1" count as true, false, 0, null, "false",
+  "no", "0" and "" as false, any other value is refused), which are no-fly zones.
 - KML: every ``<Polygon>`` (outer and inner boundaries), in ``<MultiGeometry>`` too. A Placemark
   whose ``<name>`` starts with "no-fly"/"nofly" (any case) is a no-fly zone.
 - QGroundControl .plan: see `swarmctl.geo.plan_io.read_plan`.
@@ -34,6 +35,7 @@ from swarmctl.geo.readers import (
     read_json,
     repair,
     require_file,
+    show_json,
 )
 
 AREA_SUFFIXES = (".geojson", ".json", ".kml", ".plan")
@@ -140,20 +142,37 @@ def load_area(path: str | Path) -> Area:
     return read_geojson_area(path)
 
 
-def _is_nofly(props: dict) -> bool:
+_NOFLY_TRUE = ("true", "yes", "1")
+_NOFLY_FALSE = ("false", "no", "0", "")
+
+
+def _is_nofly(props: dict, path: Path, at: str) -> bool:
+    """Whether a feature's properties mark it no-fly. true, 1 and the strings "true", "yes", "1" (any case)
+    do; false, 0, null, "false", "no", "0" and "" do not; any other value is refused, never guessed."""
+    marked = False
     for key in NOFLY_KEYS:
-        value = props.get(key)
-        if value is True or (isinstance(value, str) and value.strip().lower() in ("true", "yes", "1")):
-            return True
-    return False
+        if key not in props:
+            continue
+        value = props[key]
+        text = value.strip().lower() if isinstance(value, str) else None
+        if value is True or (type(value) is int and value == 1) or text in _NOFLY_TRUE:
+            marked = True
+        elif not (value is None or value is False or (type(value) is int and value == 0) or text in _NOFLY_FALSE):
+            raise InputError(
+                f'{path}: {at}properties["{key}"] is {show_json(value)}, neither true nor false; '
+                f'write "{key}": true for a no-fly zone or false (or leave it out) for search area'
+            )
+    return marked
 
 
 def read_geojson_area(path: Path) -> Area:
     """Read an Area from GeoJSON (see the module docstring for no-fly features)."""
     obj = read_json(path, "GeoJSON")
+    collection = isinstance(obj, dict) and obj.get("type") == "FeatureCollection"
     area, nofly, tagged = [], [], 0
-    for poly, props, where, _ in geojson_polygons(obj, path):
-        (nofly if _is_nofly(props) else area).append((poly, where))
+    for poly, props, where, index in geojson_polygons(obj, path):
+        at = f"features[{index}]." if collection else ""
+        (nofly if _is_nofly(props, path, at) else area).append((poly, where))
         tagged += any(props.get(k) not in (None, "") for k in BUILDING_KEYS)
     result = build_area(area, nofly, path, sources={"GeoJSON polygon(s)": len(area)} if area else None)
     if len(area) > 1 and tagged > len(area) / 2:

@@ -303,6 +303,32 @@ def _cell_that_fits(width_m: float, height_m: float, max_cells: int) -> float:
     return round(cell, 6)
 
 
+def _check_not_degenerate(name: str, width_m: float, height_m: float, area_m2: float, cell: float) -> None:
+    """Refuse an area narrower or shorter than one cell (along the grid's axes) or smaller than one cell's
+    area: its grid would be a single cell, or a row of cells the area does not really cover (a 1 mm x 8 km
+    sliver leaves half of a 1-cell-high row "free"). Such an area is almost always a typo in the coordinates."""
+    slack = 1.0 - EXTENT_TOLERANCE  # an area of exactly one cell, give or take rounding, passes
+    if width_m >= cell * slack and height_m >= cell * slack and area_m2 >= cell * cell * slack:
+        return
+    side = min(width_m, height_m, math.sqrt(max(area_m2, 0.0)))
+    finer = math.floor(side * 100) / 100  # the largest cell, to the centimetre, that the area can hold
+    if finer >= 0.01:
+        fix = f"give a larger area (check its coordinates) or a --cell of at most {finer:g}"
+    else:
+        fix = "no --cell fits (the smallest is 0.01 m): give a larger area, and check its coordinates"
+    raise InputError(
+        f"{name}: the area measures {_length(width_m)} x {_length(height_m)} ({area_m2:.3g} square metres), "
+        f"smaller than one {cell:g} m cell ({cell * cell:g} square metres); {fix}"
+    )
+
+
+def _length(metres: float) -> str:
+    """A length for a message: km, m or mm, three significant figures."""
+    if metres >= 1000:
+        return f"{metres / 1000:.3g} km"
+    return f"{metres:.3g} m" if metres >= 1 else f"{metres * 1000:.3g} mm"
+
+
 @dataclass
 class GridReport:
     """What went into the grid: blocked cells by reason, buildings by outcome, warnings."""
@@ -343,6 +369,7 @@ def make_grid(
     outline_m = proj.geometry_to_metres(area.outline)
     rotation = grid_axes(outline_m, rotate)
     umin, vmin, umax, vmax = affinity.rotate(outline_m, -rotation, origin=(0, 0)).bounds
+    _check_not_degenerate(area.name, umax - umin, vmax - vmin, float(outline_m.area), float(cell))
     w = max(1, math.ceil((umax - umin) / cell - EXTENT_TOLERANCE))
     h = max(1, math.ceil((vmax - vmin) / cell - EXTENT_TOLERANCE))
     if w * h > max_cells:

@@ -8,6 +8,11 @@ make up the area (their union); geofence polygons with ``"inclusion": false`` ar
 geofence circles are no-fly zones when ``"inclusion": false`` and part of the area when true. Plans
 store positions as [lat, lon(, alt)].
 
+Values are checked as QGroundControl checks them: every fence needs ``"inclusion"`` as a JSON boolean
+(0, 1, "false", null or a missing key are refused, never guessed), and coordinates and circle radii
+must be finite JSON numbers (not strings, not booleans). Errors name the JSON path of the bad value,
+e.g. ``geoFence.polygons[1].inclusion``.
+
 Writing (`write_plan`): the area's outer rings become inclusion polygons, its holes and no-fly
 polygons exclusion polygons, its no-fly circles exclusion circles, with an empty mission (home at
 a point inside the area, altitudes relative to home) and no rally points, as QGroundControl
@@ -26,7 +31,7 @@ from shapely.geometry import Polygon
 from swarmctl.errors import InputError
 from swarmctl.geo.areas import Area, Circle, build_area
 from swarmctl.geo.projection import LocalProjection
-from swarmctl.geo.readers import lonlat_ring, make_polygon, read_json
+from swarmctl.geo.readers import json_number, lonlat_ring, make_polygon, read_json, show_json
 
 CIRCLE_SEGMENTS = 32  # per quarter circle when a circle becomes a polygon
 MAX_RADIUS = 1e6  # metres
@@ -41,10 +46,25 @@ def circle_polygon(circle: Circle) -> Polygon:
     return proj.geometry_to_lonlat(disc)
 
 
-def _ring(coords: object, path: Path, where: str) -> np.ndarray:
+def _ring(coords: object, path: Path, where: str, at: str) -> np.ndarray:
     if not isinstance(coords, list):
-        raise InputError(f'{path}: {where}: "polygon" must be a list of [lat, lon] positions; fix the plan')
-    return lonlat_ring(coords, path, where, lat_first=True, fmt="a QGroundControl plan")
+        raise InputError(
+            f'{path}: {where}: {at} is {show_json(coords)}: "polygon" must be a list of [lat, lon] positions; '
+            "fix the plan"
+        )
+    return lonlat_ring(coords, path, where, lat_first=True, fmt="a QGroundControl plan", json_path=at)
+
+
+def _inclusion(item: dict, path: Path, at: str, zone: str) -> bool:
+    """A fence's "inclusion": a JSON boolean, required, as QGroundControl itself requires (0, 1, "false" and
+    null are refused: reading "false" as true would turn a no-fly zone into search area)."""
+    fix = f'write "inclusion": true (search area) or false (no-fly zone) for this {zone}, as QGroundControl does'
+    if "inclusion" not in item:
+        raise InputError(f"{path}: {at}.inclusion is missing; {fix}")
+    value = item["inclusion"]
+    if not isinstance(value, bool):
+        raise InputError(f"{path}: {at}.inclusion is {show_json(value)}, not true or false; {fix}")
+    return value
 
 
 def _items(parent: dict, key: str, path: Path, where: str) -> list:
@@ -85,29 +105,39 @@ def read_plan(path: str | Path) -> Area:
     circles: list[Circle] = []
     counts = {"inclusion fence(s)": 0, "survey polygon(s)": 0, "inclusion circle(s)": 0}
     for i, item in enumerate(_items(fence, "polygons", path, "geoFence")):
-        where = f"geoFence polygon {i}"
+        where, at = f"geoFence polygon {i}", f"geoFence.polygons[{i}]"
         if not isinstance(item, dict):
-            raise InputError(f"{path}: {where}: not a JSON object; fix the plan")
-        poly = make_polygon(_ring(item.get("polygon"), path, where), [], path, where)
-        if item.get("inclusion", True):
+            raise InputError(f"{path}: {where}: {at} is {show_json(item)}, not a JSON object; fix the plan")
+        poly = make_polygon(_ring(item.get("polygon"), path, where, f"{at}.polygon"), [], path, where)
+        if _inclusion(item, path, at, "polygon"):
             area.append((poly, where))
             counts["inclusion fence(s)"] += 1
         else:
             nofly.append((poly, where))
     for i, item in enumerate(_items(fence, "circles", path, "geoFence")):
-        where = f"geoFence circle {i}"
-        try:
-            lat, lon = (float(v) for v in item["circle"]["center"][:2])
-            radius = float(item["circle"]["radius"])
-        except (KeyError, TypeError, ValueError, IndexError):
+        where, at = f"geoFence circle {i}", f"geoFence.circles[{i}]"
+        shape = '"circle": {"center": [lat, lon], "radius": metres}'
+        circle = item.get("circle") if isinstance(item, dict) else None
+        if not isinstance(circle, dict) or "center" not in circle or "radius" not in circle:
+            raise InputError(f"{path}: {where}: {at} needs {shape}; fix the plan")
+        center = circle["center"]
+        if not isinstance(center, list) or len(center) < 2:
             raise InputError(
-                f'{path}: {where}: needs "circle": {{"center": [lat, lon], "radius": metres}}; fix the plan'
-            ) from None
-        lonlat_ring([[lat, lon]], path, where, lat_first=True, fmt="a QGroundControl plan")
+                f"{path}: {where}: {at}.circle.center is {show_json(center)}, not [lat, lon]; "
+                f"{at} needs {shape}; fix the plan"
+            )
+        fix = "write it as a JSON number in degrees, e.g. 41.876 (not a string or a boolean); fix the plan"
+        lat, lon = (json_number(center[k], path, f"{at}.circle.center[{k}]", fix) for k in (0, 1))
+        fix = "write the radius in metres as a JSON number, e.g. 100 (not a string or a boolean); fix the plan"
+        radius = json_number(circle["radius"], path, f"{at}.circle.radius", fix)
+        centre = f"{where}: {at}.circle.center"
+        lonlat_ring([[lat, lon]], path, centre, lat_first=True, fmt="a QGroundControl plan")
         if not 0 < radius < MAX_RADIUS:
-            raise InputError(f"{path}: {where}: radius {radius:g} m must be > 0 and below 1000 km; fix the plan")
+            raise InputError(
+                f"{path}: {where}: {at}.circle.radius {radius:g} m must be > 0 and below 1000 km; fix the plan"
+            )
         circle = Circle(lat, lon, radius)
-        if item.get("inclusion", False):
+        if _inclusion(item, path, at, "circle"):
             area.append((circle_polygon(circle), where))
             counts["inclusion circle(s)"] += 1
         else:
@@ -115,7 +145,8 @@ def read_plan(path: str | Path) -> Area:
     for i, item in enumerate(_items(mission, "items", path, "mission")):
         if isinstance(item, dict) and item.get("complexItemType") == "survey":
             where = f"mission item {i} (survey)"
-            area.append((make_polygon(_ring(item.get("polygon"), path, where), [], path, where), where))
+            ring = _ring(item.get("polygon"), path, where, f"mission.items[{i}].polygon")
+            area.append((make_polygon(ring, [], path, where), where))
             counts["survey polygon(s)"] += 1
     return build_area(area, nofly, path, circles, {k: n for k, n in counts.items() if n})
 

@@ -8,6 +8,8 @@ are returned as warning strings for the caller to print.
 from __future__ import annotations
 
 import json
+import math
+import numbers
 from pathlib import Path
 
 import numpy as np
@@ -68,37 +70,136 @@ def check_geojson_crs(obj: object, path: Path) -> None:
     )
 
 
-def lonlat_ring(coords: object, path: Path, where: str, lat_first: bool = False, fmt: str = "GeoJSON") -> np.ndarray:
+def show_json(value: object) -> str:
+    """A JSON value as a file spells it (cut to 40 characters), with its kind unless it is a number or null."""
+    try:
+        text = json.dumps(value)
+    except (TypeError, ValueError):
+        text = repr(value)
+    if len(text) > 40:
+        text = text[:37] + "..."
+    if isinstance(value, bool) or isinstance(value, np.bool_):
+        return f"{text} (a boolean)"
+    kinds = ((str, "a string"), ((list, tuple, np.ndarray), "an array"), (dict, "an object"))
+    kind = next((k for t, k in kinds if isinstance(value, t)), None)
+    return f"{text} ({kind})" if kind else text
+
+
+def is_number(value: object) -> bool:
+    """Whether `value` is a JSON number: an int or a float (numpy's too), not a bool or a string."""
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def json_number(value: object, path: Path, field: str, fix: str) -> float:
+    """`value` as a finite float; anything else (a string, a bool, null, NaN, infinity) is an InputError
+    naming `field` (a JSON path such as geoFence.circles[0].circle.radius) and ending with `fix`."""
+    if not is_number(value):
+        raise InputError(f"{path}: {field} is {show_json(value)}, not a number; {fix}")
+    try:
+        number = float(value)  # type: ignore[arg-type]
+    except OverflowError:  # an integer of hundreds of digits
+        number = math.inf
+    if not math.isfinite(number):
+        raise InputError(f"{path}: {field} is {show_json(value)}, not a finite number; {fix}")
+    return number
+
+
+def _positions(coords: object, path: Path, where: str, lat_first: bool, json_path: str | None) -> np.ndarray:
+    """The positions of a ring as an (n, 2) float array, in the file's order; every value of every position
+    must be a finite number (int or float, not a bool or a string), each position an array of at least two."""
+    pair = "[lat, lon]" if lat_first else "[lon, lat]"
+    fix = "fix the file's geometry"
+
+    def loc(k: int, c: int | None = None) -> str:
+        if json_path is None:
+            return f"position {k}" + ("" if c is None else f" value {c}")
+        return f"{json_path}[{k}]" + ("" if c is None else f"[{c}]")
+
+    if not isinstance(coords, (list, tuple, np.ndarray)):
+        what = json_path or "the ring"
+        raise InputError(
+            f"{path}: {where}: {what} is {show_json(coords)}: coordinates are not lists of numbers; "
+            f"a ring is an array of positions {pair}; {fix}"
+        )
+    if len(coords) == 0:
+        raise InputError(f"{path}: {where}: the ring has no positions; each position needs two numbers; {fix}")
+    rows = []
+    for k, pt in enumerate(coords):
+        if not isinstance(pt, (list, tuple, np.ndarray)):
+            raise InputError(
+                f"{path}: {where}: {loc(k)} is {show_json(pt)}: coordinates are not lists of numbers; "
+                f"a position is an array of numbers {pair}; {fix}"
+            )
+        if len(pt) < 2:
+            raise InputError(
+                f"{path}: {where}: {loc(k)} is {show_json(pt)}: each position needs two numbers {pair}; {fix}"
+            )
+        for c, v in enumerate(pt):
+            if type(v) is not float and type(v) is not int and not is_number(v):  # bool's type is bool
+                hint = " (write it without quotes)" if isinstance(v, str) and _numeric(v) else ""
+                raise InputError(
+                    f"{path}: {where}: {loc(k, c)} is {show_json(v)}: coordinates are not lists of numbers; "
+                    f"each coordinate must be a JSON number{hint}; {fix}"
+                )
+            try:
+                finite = math.isfinite(v)
+            except OverflowError:  # an integer of hundreds of digits
+                finite = False
+            if not finite:
+                raise InputError(
+                    f"{path}: {where}: {loc(k, c)} is {show_json(v)}: coordinates contain NaN or infinity; {fix}"
+                )
+        rows.append(pt[:2])
+    return np.array(rows, dtype=float)
+
+
+def _numeric(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def lonlat_ring(
+    coords: object,
+    path: Path,
+    where: str,
+    lat_first: bool = False,
+    fmt: str = "GeoJSON",
+    json_path: str | None = None,
+) -> np.ndarray:
     """Check one ring's coordinates and return them as an (n, 2) float array of lon, lat.
 
-    `lat_first` is for QGroundControl plans, which store [lat, lon]; `fmt` names the format in errors.
-    Extra values (altitude) are dropped. Latitudes beyond +-90, or within 5 degrees of a pole when the
-    swapped reading is an ordinary place, are reported as swapped coordinates; other polar rings, rings
-    round a pole and rings across the antimeridian are refused.
+    `lat_first` is for QGroundControl plans, which store [lat, lon]; `fmt` names the format in errors;
+    `json_path` (e.g. ``features[0].geometry.coordinates[0]``) is where the ring is in a JSON file, so that
+    errors name the exact value (``...coordinates[0][3][1]``); without it they name "position k".
+    Every value must be a finite number: an int or a float, not a bool, a string or null. Extra values
+    (altitude) are checked the same way, then dropped. Latitudes beyond +-90, or within 5 degrees of a
+    pole when the swapped reading is an ordinary place, are reported as swapped coordinates; longitudes
+    beyond +-180, other polar rings, rings round a pole and rings across the antimeridian are refused.
     """
-    try:
-        arr = np.array([[float(v) for v in pt[:2]] for pt in coords], dtype=float)  # type: ignore[union-attr]
-    except GEOMETRY_ERRORS:
-        raise InputError(f"{path}: {where}: coordinates are not lists of numbers; fix the file's geometry") from None
-    if arr.ndim != 2 or arr.shape[1] != 2 or len(arr) == 0:
-        raise InputError(f"{path}: {where}: each position needs two numbers; fix the file's geometry")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{path}: {where}: coordinates contain NaN or infinity; fix the file's geometry")
+    arr = _positions(coords, path, where, lat_first, json_path)
+
+    def at(k: int) -> str:
+        return "" if json_path is None else f" (at {json_path}[{k}])"
+
     if lat_first:
         arr = arr[:, ::-1]
     lon, lat = arr[:, 0], arr[:, 1]
     stored, swapped = ("[lat, lon]", "[lon, lat]") if lat_first else ("[lon, lat]", "[lat, lon]")
     order = f"{fmt} stores {stored}" + (" (RFC 7946)" if fmt == "GeoJSON" else "")
-    worst = float(lat[np.argmax(np.abs(lat))])
+    worst_at = int(np.argmax(np.abs(lat)))
+    worst = float(lat[worst_at])
     if abs(worst) > 90:
         raise InputError(
-            f"{path}: {where}: latitude {worst:g} is beyond +-90, so the coordinates look like {swapped}; "
-            f"{order}: swap the two values"
+            f"{path}: {where}: latitude {worst:g}{at(worst_at)} is beyond +-90, so the coordinates look like "
+            f"{swapped}; {order}: swap the two values"
         )
     if np.any(np.abs(lon) > 180):
+        far = int(np.argmax(np.abs(lon)))
         raise InputError(
-            f"{path}: {where}: longitude {lon[np.argmax(np.abs(lon))]:g} is beyond +-180; "
-            "coordinates must be WGS84 degrees"
+            f"{path}: {where}: longitude {lon[far]:g}{at(far)} is beyond +-180; coordinates must be WGS84 degrees"
         )
     if abs(worst) > POLAR_LATITUDE:
         if np.all(np.abs(lon) <= POLAR_LATITUDE):  # read the other way round, it is an ordinary place
@@ -190,27 +291,40 @@ def geojson_polygons(obj: object, path: Path) -> list[tuple[Polygon, dict, str, 
     check_geojson_crs(obj, path)
     out: list[tuple[Polygon, dict, str, int]] = []
 
-    def geometry(geom: object, props: dict, where: str, index: int = 0) -> None:
+    def geometry(geom: object, props: dict, where: str, index: int = 0, at: str = "") -> None:
+        # `at` is the JSON path of `geom` in the file ("" for the root), so errors can name the exact value.
+        here = at or "the root"
         if geom is None:
             return
         if not isinstance(geom, dict):
-            raise InputError(f"{path}: {where}: geometry is not a JSON object; fix the file")
+            raise InputError(f"{path}: {where}: geometry {here} is {show_json(geom)}, not a JSON object; fix the file")
         kind = geom.get("type")
         if kind == "GeometryCollection":
-            for i, g in enumerate(geom.get("geometries") or []):
-                geometry(g, props, f"{where} geometry {i}", index)
+            parts = geom.get("geometries")
+            if parts is not None and not isinstance(parts, list):
+                raise InputError(
+                    f"{path}: {where}: {_member(at, 'geometries')} is {show_json(parts)}, not a list of geometries; "
+                    "fix the file"
+                )
+            for i, g in enumerate(parts or []):
+                geometry(g, props, f"{where} geometry {i}", index, f"{_member(at, 'geometries')}[{i}]")
             return
         if kind not in ("Polygon", "MultiPolygon"):
             return
         coords = geom.get("coordinates")
-        polys = [coords] if kind == "Polygon" else coords
-        if not isinstance(polys, list):
-            raise InputError(f"{path}: {where}: {kind} has no coordinate list; fix the file")
-        for j, rings in enumerate(polys):
+        field = _member(at, "coordinates")
+        if not isinstance(coords, list):
+            raise InputError(
+                f"{path}: {where}: {field} is {show_json(coords)}: {kind} has no coordinate list; fix the file"
+            )
+        polys = [(coords, field)] if kind == "Polygon" else [(p, f"{field}[{j}]") for j, p in enumerate(coords)]
+        for j, (rings, rings_at) in enumerate(polys):
             label = where if kind == "Polygon" else f"{where} part {j}"
             if not isinstance(rings, list) or not rings:
-                raise InputError(f"{path}: {label}: polygon without rings; fix the file")
-            arrs = [lonlat_ring(r, path, label) for r in rings]
+                raise InputError(
+                    f"{path}: {label}: {rings_at} is {show_json(rings)}: polygon without rings; fix the file"
+                )
+            arrs = [lonlat_ring(r, path, label, json_path=f"{rings_at}[{k}]") for k, r in enumerate(rings)]
             out.append((make_polygon(arrs[0], arrs[1:], path, label), props, label, index))
 
     kind = obj.get("type")
@@ -220,12 +334,19 @@ def geojson_polygons(obj: object, path: Path) -> list[tuple[Polygon, dict, str, 
             raise InputError(f'{path}: FeatureCollection without a "features" list; fix the file')
         for i, f in enumerate(feats):
             if not isinstance(f, dict):
-                raise InputError(f"{path}: feature {i} is not a JSON object; fix the file")
+                raise InputError(
+                    f"{path}: feature {i}: features[{i}] is {show_json(f)}, not a JSON object; fix the file"
+                )
             props = f.get("properties") if isinstance(f.get("properties"), dict) else {}
-            geometry(f.get("geometry"), props, f"feature {i}", i)
+            geometry(f.get("geometry"), props, f"feature {i}", i, f"features[{i}].geometry")
     elif kind == "Feature":
         props = obj.get("properties") if isinstance(obj.get("properties"), dict) else {}
-        geometry(obj.get("geometry"), props, "feature 0")
+        geometry(obj.get("geometry"), props, "feature 0", 0, "geometry")
     else:
         geometry(obj, {}, "geometry")
     return out
+
+
+def _member(at: str, key: str) -> str:
+    """The JSON path of member `key` of the value at path `at` ("" is the root)."""
+    return f"{at}.{key}" if at else key
