@@ -23,7 +23,7 @@ import pytest
 import torch
 
 from swarmctl.cli import main
-from swarmctl.policy.checkpoint import save_checkpoint
+from swarmctl.policy.checkpoint import save_checkpoint, weights_sha256
 from swarmctl.policy.qnet import QNetwork
 from swarmctl.world.config import WorldConfig
 from tests.mission_support import small_grid
@@ -273,6 +273,13 @@ def files(tmp_path_factory) -> dict[str, Path]:
     f["emptyrec"] = d / "emptyrec"
     f["sitl"] = SITL_LOG
     f["recording"] = RECORDING
+    for name, key, shape in (("wideshape.pt", "head.2.weight", (7, 64)), ("extraweight.pt", "evil", (1,))):
+        f[name] = d / name
+        checkpoint(f[name])
+        body = torch.load(f[name], weights_only=True)
+        body["state_dict"][key] = torch.zeros(shape)
+        body["weights_sha256"] = weights_sha256(body["state_dict"])
+        torch.save(body, f[name])
     (d / "earlier-run").mkdir()  # a recording folder an output must not overwrite
     text("earlier-run/events.jsonl", '{"t": 1.0, "event": "mission"}\n')
     f["earlier-run"] = d / "earlier-run"
@@ -369,6 +376,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("ckpt-world-text", ["eval", "--policy", "ddql:{textfov.pt}"], "world.fov"),
     ("ckpt-world-window", ["eval", "--policy", "ddql:{window.pt}"], "world.window"),
     ("ckpt-folder", ["eval", "--policy", "ddql:{folder}"], "checkpoint"),
+    ("ckpt-shape", ["eval", "--policy", "ddql:{wideshape.pt}"], "head.2.weight is [7, 64] in the file, [5, 64]"),
+    ("ckpt-extra-weight", ["eval", "--policy", "ddql:{extraweight.pt}"], "evil is not a weight of it"),
     # eval: files
     ("eval-json-under-file", [*EVAL, "--json", "{under-file}/r.json"], "--json"),
     ("eval-json-folder", [*EVAL, "--json", "{folder}"], "--json"),

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import pickle
+import warnings
 import zipfile
 from dataclasses import fields
 from pathlib import Path
@@ -95,7 +96,9 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.
             "may have; give a .pt file written by `swarmctl train`"
         )
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch's warnings about a foreign pickle: the error below says it
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
     except (
         pickle.UnpicklingError,
         zipfile.BadZipFile,
@@ -152,6 +155,12 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.
             raise InputError(f"{path}: weight {key} holds NaN or infinite values; this model cannot fly")
     try:
         net = network(window=f)
+        misfit = _misfit(net.state_dict(), state)
+        if misfit is not None:
+            raise InputError(
+                f"{path}: weights do not fit the {network.architecture} network ({misfit}); give a checkpoint "
+                "of that network, written by `swarmctl train`"
+            )
         net.load_state_dict(state)
     except (KeyError, RuntimeError, TypeError, ValueError) as exc:
         raise InputError(
@@ -182,3 +191,18 @@ def _check_world(world: dict, window: int, path: Path) -> None:
             f"{path}: world.window = {world.get('window')!r} differs from the network's {window}; "
             "use an intact checkpoint"
         )
+
+
+def _misfit(expected: dict, given: dict) -> str | None:
+    """The first difference between a network's state dict and a checkpoint's: a missing or unexpected
+    key, or a shape, named (None when they fit)."""
+    missing = [k for k in expected if k not in given]
+    if missing:
+        return f"no {missing[0]} in the file" + (f", and {len(missing) - 1} more missing" if len(missing) > 1 else "")
+    extra = [k for k in given if k not in expected]
+    if extra:
+        return f"{extra[0]} is not a weight of it" + (f", and {len(extra) - 1} more" if len(extra) > 1 else "")
+    for key, t in expected.items():
+        if tuple(given[key].shape) != tuple(t.shape):
+            return f"{key} is {list(given[key].shape)} in the file, {list(t.shape)} in the network"
+    return None
