@@ -197,6 +197,13 @@ def test_missing_and_mistyped_tables(tmp_path):
         "[mission] is missing; add a [mission] table with at least policy and grid or area"
     )
     assert error(write(tmp_path, "timing = 3\n" + GOOD)).startswith("[timing] must be a table")
+    many = "".join(
+        f'[[vehicles]]\nname = "v{i}"\nconnection = "udpin:127.0.0.1:{20000 + i}"\nsysid = {i % 250 + 1}\n'
+        for i in range(251)
+    )
+    assert error(write(tmp_path, GOOD.split("[[vehicles]]")[0] + many)) == (
+        "[[vehicles]]: 251 of them, more than the 250 a mission may have; fly fewer"
+    )
 
 
 def test_a_huge_file_is_refused_before_it_is_parsed(tmp_path):

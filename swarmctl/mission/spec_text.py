@@ -62,6 +62,9 @@ def explain(error: Any, root: type[BaseModel]) -> str:
     top = heading(root, parts[0]) if len(parts) == 1 and parts[0] in root.model_fields else None
     if error["type"] in ("missing", "too_short") and top:
         return f"{top} is {'missing' if error['type'] == 'missing' else 'empty'}; add {info.description}"
+    if error["type"] == "too_long" and top:
+        most = (error.get("ctx") or {}).get("max_length")
+        return f"{top}: {len(error.get('input') or ())} of them, more than the {most} a mission may have; fly fewer"
     if error["type"] == "missing":
         return f"{key} is missing ({info.description if info else 'needed'}); {_fix(parts, info)}"
     if cause is None and info is not None and _table_of(info) is not None:
