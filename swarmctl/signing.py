@@ -14,6 +14,15 @@ most one minute behind our own clock, as the MAVLink specification says).
 
 The timestamps table (`mav.signing.stream_timestamps`) therefore only grows with streams that hold the
 key. Counters: pymavlink's own (`goodsig_count`, `badsig_count`, `reject_count`, `unsigned_count`).
+
+Several MAVLink objects of one process that sign as the same system and component (the controller's
+links: one per connection, every one system 255, component 190) must not sign as one stream: a frame
+copied from one link onto another would be new to the vehicle there, and the timestamp it carries
+would make that link's own frames look old. So each gets a `link_id` of its own (a stream is
+(link id, system id, component id), at ArduPilot and PX4 as here), and they draw their timestamps
+from one `SigningClock` (`clock=`): strictly increasing over all of them and never behind the wall
+clock, so even where a receiver kept one timestamp for all of them, a frame copied from another link
+is older than the next frame of the link's own.
 """
 
 from __future__ import annotations
@@ -22,9 +31,12 @@ import functools
 import hashlib
 import hmac
 import struct
+import threading
 import time
 from collections.abc import Callable, Collection
 from typing import Any
+
+from pymavlink.dialects.v20.ardupilotmega import MAVLinkSigning
 
 KEY_BYTES = 32
 EPOCH_2015 = 1420070400  # MAVLink signing timestamps count 10 microsecond units from 2015-01-01 UTC
@@ -35,6 +47,50 @@ _TIMESTAMP = struct.Struct("<IH")
 def now_timestamp() -> int:
     """The current time as a MAVLink signing timestamp (10 us units since 2015-01-01 UTC)."""
     return int((max(time.time(), EPOCH_2015) - EPOCH_2015) * 100_000)
+
+
+class SigningClock:
+    """One source of signing timestamps for several MAVLink objects: every value handed out is at least
+    the wall clock's (`now_timestamp`) and at least any value set (a frame sent: pymavlink adds 1 after
+    signing; a newer timestamp received), so the frames of all of them carry increasing timestamps."""
+
+    def __init__(self) -> None:
+        self._last = 0
+        self._lock = threading.Lock()
+
+    def now(self) -> int:
+        value = int((time.time() - EPOCH_2015) * 100_000)
+        with self._lock:
+            if value > self._last:
+                self._last = value
+                return value
+            return self._last
+
+    def advance(self, value: int) -> None:
+        with self._lock:
+            if value > self._last:
+                self._last = value
+
+
+PROCESS_CLOCK = SigningClock()  # the controller's links draw from this one (swarmctl.mavlink.network)
+
+
+class _ClockedSigning(MAVLinkSigning):
+    """pymavlink's signing state with its `timestamp` read from, and written to, a SigningClock."""
+
+    def __init__(self, clock: SigningClock, state: MAVLinkSigning):
+        self._clock = clock
+        super().__init__()
+        self.__dict__.update({k: v for k, v in vars(state).items() if k != "timestamp"})
+        clock.advance(state.timestamp)
+
+    @property
+    def timestamp(self) -> int:  # type: ignore[override]
+        return self._clock.now()
+
+    @timestamp.setter
+    def timestamp(self, value: int) -> None:
+        self._clock.advance(value)
 
 
 def check_signature(mav: Any, msgbuf: bytearray, src_system: int, src_component: int) -> bool:
@@ -65,12 +121,19 @@ def setup_signing(
     link_id: int = 0,
     sign_outgoing: bool = True,
     accept_unsigned: Collection[int] | Callable[[Any, int], bool] = (),
+    clock: SigningClock | None = None,
 ) -> None:
     """Sign what `mav` sends with `key` (32 bytes) and accept only frames signed with it, verified by
     `check_signature`; `accept_unsigned` names message ids still taken unsigned (or is a callback
-    (mav, msg_id) -> bool, as pymavlink's)."""
+    (mav, msg_id) -> bool, as pymavlink's). `link_id` (0-255) is the link id of the frames it signs;
+    with `clock` its timestamps come from that SigningClock (shared with the other objects on it)
+    instead of a counter of its own."""
     if len(key) != KEY_BYTES:
         raise ValueError(f"a MAVLink signing key is {KEY_BYTES} bytes")
+    if not 0 <= int(link_id) <= 255:
+        raise ValueError(f"a MAVLink signing link id is 0..255, not {link_id}")
+    if clock is not None and not isinstance(mav.signing, _ClockedSigning):
+        mav.signing = _ClockedSigning(clock, mav.signing)
     s = mav.signing
     s.secret_key, s.sign_outgoing, s.link_id = bytes(key), sign_outgoing, int(link_id)
     s.timestamp = max(s.timestamp, now_timestamp())

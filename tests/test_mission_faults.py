@@ -3,15 +3,12 @@ fails that vehicle (or the mission) but never leaves a vehicle in the air withou
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
-import socket
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.autopilots.ardupilot import whole_parameter
 from swarmctl.mavlink.errors import MavlinkError
@@ -41,22 +38,16 @@ async def second_vehicle_late(controller, swarm) -> int:
 def test_a_nan_parameter_in_a_vehicles_name_fails_that_vehicle_and_the_other_still_comes_home(tmp_path):
     with SimSwarm(small_grid(), uavs=2, seed=1, speedup=30.0) as swarm:
         swarm.mocks[1].slow_boot(3000.0)  # vehicle 2 boots late: vehicle 1 is in the air first
+        swarm.mocks[1].params["FENCE_TYPE"] = math.nan  # what a forger answering in its name sent
         plan = swarm.plan("frontier", end_action="rtl", time_limit=4.0, fence=True)
-        spoof = mavlink2.MAVLink(None, srcSystem=2, srcComponent=1)
-        nan_fence = spoof.param_value_encode(b"FENCE_TYPE", math.nan, mavlink2.MAV_PARAM_TYPE_REAL32, 1, 0)
-        frame = bytes(nan_fence.pack(spoof))
 
-        async def forge(controller):
-            port = await second_vehicle_late(controller, swarm)
-            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-                while controller.agents[1].state is not State.FAILED:  # every read of FENCE_TYPE answered first
-                    s.sendto(frame, ("127.0.0.1", port))
-                    await asyncio.sleep(0.002)
+        async def boot_the_second(controller):
+            await second_vehicle_late(controller, swarm)
 
-        controller, outcome = fly(plan, tmp_path, timeout=TIMEOUT, during=forge)
+        controller, outcome = fly(plan, tmp_path, timeout=TIMEOUT, during=boot_the_second)
         first = swarm.mocks[0]
         first.wait_for(lambda m: not m.state().armed, 60)
-    assert outcome != "complete"
+    assert outcome in ("partial", "time limit")  # flown to its end by vehicle 1
     assert controller.agents[1].state is State.FAILED
     assert "FENCE_TYPE reads as nan" in controller.agents[1].error
     ended = [e for e in events(tmp_path) if e["event"] == "end_action"]

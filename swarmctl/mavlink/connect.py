@@ -50,8 +50,12 @@ class Connector:
         telemetry_hz: float = 5.0,
         on_open: Callable[[MavlinkLink], None] | None = None,
         source: str = "the mission file",
+        first_link_id: int | None = None,
     ):
         self.links = links
+        # the signing link id of the first link opened (None: the lowest free in this process); onboard
+        # agents, one process each, pass their vehicle's index so no two sign as the same stream
+        self.first_link_id = first_link_id
         self.signing_key = signing_key
         self.telemetry_hz = telemetry_hz
         self.on_open = on_open
@@ -122,7 +126,8 @@ class Connector:
             link = self.links.get(key)
             if link is None:
                 try:
-                    link = await MavlinkLink(endpoint, signing_key=self.signing_key).open()
+                    link_id = self.first_link_id if not self.links else None
+                    link = await MavlinkLink(endpoint, signing_key=self.signing_key, link_id=link_id).open()
                 except OSError as exc:
                     raise MavlinkError(f"cannot open {endpoint}: {exc.strerror or exc}") from None
                 if self.on_open is not None:

@@ -25,6 +25,12 @@ log = logging.getLogger("swarmctl.mavlink.network")  # the links' log: what a us
 GATHER_S = 0.005  # a loop woken by a reader (or a UDP socket) takes what has come in this long after
 WATCHDOG_S = 0.1  # how often the links' heartbeats are checked for link loss
 READ_BATCH = 64  # datagrams a UDP link reads at most in one drain before the loop's other work gets its turn
+# Bytes parsed at most in one drain, per UDP link and in all (a datagram counts up to its first
+# transport.MAX_DATAGRAM_PARSE bytes, what parsing it costs): once a link has had its share, what it has
+# queued waits for the next drain, so a flood of big datagrams costs a bounded time a drain. 64 of the
+# largest MAVLink 2 frames (280 bytes) are 17,920 bytes: an autopilot's traffic stays under both.
+LINK_DRAIN_BYTES = 32768
+DRAIN_BYTES = 131072
 
 
 class Inbox:
@@ -143,24 +149,37 @@ class Inbox:
         """The ready UDP sockets' datagrams, parsed, per link in their order: in passes of one datagram
         from each socket the selector finds ready, until none is, so no read comes back empty (a failed
         recvfrom cost more than the datagram's parse in a 50-vehicle flight); at most READ_BATCH passes,
-        so a flooded link cannot hold up the loop (the rest waits for the next drain)."""
+        LINK_DRAIN_BYTES parsed per link and DRAIN_BYTES in all, so a flooded link cannot hold up the loop
+        (the rest waits for the next drain)."""
         assert self._sockets is not None
         got: dict[MavlinkLink, list] = {}
-        stopped: set[MavlinkLink] = set()  # closing, or ready with nothing to read: not read again this drain
+        stopped: set[MavlinkLink] = set()  # closing, ready with nothing to read, or had its share: not read again
+        spent: dict[MavlinkLink, int] = {}  # bytes parsed per link
+        left = DRAIN_BYTES
         select = self._sockets.select
         for _ in range(READ_BATCH):
             ready = [key.data for key, _ in select(0)]
             if not ready or stopped.issuperset(ready):
                 break
             for link in ready:
+                if link in stopped:
+                    continue
                 msgs = link._read_datagram()
                 if msgs is None:
                     stopped.add(link)
-                elif msgs:
+                    continue
+                cost = link.read_bytes
+                total = spent[link] = spent.get(link, 0) + cost
+                if total >= LINK_DRAIN_BYTES:
+                    stopped.add(link)
+                if msgs:
                     if link in got:
                         got[link] += msgs
                     else:
                         got[link] = msgs
+                left -= cost
+                if left <= 0:
+                    return list(got.items())
         return list(got.items())
 
     def watch(self, link: MavlinkLink) -> None:

@@ -18,6 +18,15 @@ under a lock. A slow or silent vehicle only makes its own coroutines wait, never
 Several vehicles may share one link: vehicles are told apart by system id, and every message the link
 sends carries an explicit target_system/target_component (nothing relies on pymavlink's habit of
 locking onto the first heartbeat's system id).
+
+What the wire can make a link do is bounded (docs/security.md): with a key, each open link of the
+process signs with a link id of its own and takes its signing timestamps from one clock
+(swarmctl.signing.PROCESS_CLOCK), so a frame copied from one link onto another costs neither; a
+`udpin` link answers only addresses that sent a frame signed with the key (without a key: a vehicle's
+heartbeat), never one for an unsigned RADIO_STATUS; a datagram is parsed up to its first
+MAX_DATAGRAM_PARSE bytes and a link reads at most inbox.LINK_DRAIN_BYTES a drain; link events
+(`events`, `on_link_change`) are kept only for the system ids the link expects (`expect`; asked for
+with `wait_heartbeat`, `peer`, a command), at most EVENTS_KEEP of them.
 """
 
 from __future__ import annotations
@@ -37,14 +46,51 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
 from swarmctl.mavlink.inbox import Inbox, call_batch_listeners, inbox_for
-from swarmctl.mavlink.transport import Transport, UdpTransport, open_transport, parse_bytes, valid_frame
-from swarmctl.signing import setup_signing
+from swarmctl.mavlink.transport import (
+    MAX_DATAGRAM_PARSE,
+    Transport,
+    UdpTransport,
+    Unparsed,
+    open_transport,
+    parse_bytes,
+)
+from swarmctl.signing import PROCESS_CLOCK, setup_signing
 
 log = logging.getLogger(__name__)
 
 MAV = mavlink2
 # Messages a signing controller still accepts unsigned (radio status comes from the radio itself).
 _UNSIGNED_OK = {MAV.MAVLINK_MSG_ID_RADIO_STATUS}
+_RADIO_STATUS = MAV.MAVLINK_MSG_ID_RADIO_STATUS
+_HEARTBEAT = MAV.MAVLINK_MSG_ID_HEARTBEAT
+EVENTS_KEEP = 1000  # link events kept in MavlinkLink.events (the oldest go)
+
+# Signing link ids of the open links of this process: each signs as a stream of its own.
+_link_ids: dict[int, object] = {}
+_link_ids_lock = threading.Lock()
+
+
+def _take_link_id(owner: object, wanted: int | None = None) -> int:
+    """`wanted`, or else the lowest signing link id no open link of this process holds (a closed link's
+    id is free again: its successor's timestamps, from the same clock, are newer than all it sent); held
+    by `owner` until _free_link_id. With all 256 held the ids are shared (logged)."""
+    with _link_ids_lock:
+        if wanted is not None:
+            _link_ids.setdefault(wanted, owner)
+            return wanted
+        for link_id in range(256):
+            if link_id not in _link_ids:
+                _link_ids[link_id] = owner
+                return link_id
+    link_id = id(owner) % 256
+    log.warning("more than 256 signing links open in this process: link id %d is shared", link_id)
+    return link_id
+
+
+def _free_link_id(link_id: int, owner: object) -> None:
+    with _link_ids_lock:
+        if _link_ids.get(link_id) is owner:
+            del _link_ids[link_id]
 
 
 def command_name(command: int) -> str:
@@ -74,6 +120,7 @@ class Peer:
     heartbeat: Any = None
     last_heartbeat: float = 0.0  # time.monotonic()
     lost: bool = False
+    announced: bool = False  # its "seen" event has been given (events start with it)
     messages: dict[str, Any] = field(default_factory=dict)
     received_at: dict[str, float] = field(default_factory=dict)
     statustexts: deque = field(default_factory=lambda: deque(maxlen=50))
@@ -91,6 +138,7 @@ class LinkStats:
     bad_data: int = 0
     console_bytes: int = 0  # an autopilot's boot text on a stream link (SITL's SERIAL0), not bad data
     unknown: int = 0  # frames of message ids the dialect does not have (pymavlink checks neither CRC nor signature)
+    dropped_bytes: int = 0  # bytes of datagrams past their first MAX_DATAGRAM_PARSE, not parsed (one bad_data each)
 
 
 CONSOLE_KEEP = 4096  # bytes of console text kept on the link (`MavlinkLink.console`)
@@ -113,16 +161,24 @@ class MavlinkLink:
         heartbeat_type: int = MAV.MAV_TYPE_GCS,
         heartbeat_period: float = 1.0,
         lost_after: float = 3.0,
+        link_id: int | None = None,
+        expect: Iterable[int] = (),
     ):
         self.endpoint = connection if isinstance(connection, Endpoint) else parse_connection(connection)
         if signing_key is not None and len(signing_key) != 32:
             raise ValueError("a MAVLink signing key is 32 bytes")
+        if link_id is not None and not 0 <= link_id <= 255:
+            raise ValueError(f"a MAVLink signing link id is 0..255, not {link_id}")
         self.system_id, self.component_id = system_id, component_id
         self.signing_key, self.accept_unsigned = signing_key, accept_unsigned
         self.heartbeat_type, self.heartbeat_period, self.lost_after = (heartbeat_type, heartbeat_period, lost_after)
+        self.link_id = link_id  # signing link id; None: the lowest one free in this process, taken at open()
+        self._own_link_id: int | None = None
         self.peers: dict[int, Peer] = {}
         self.stats = LinkStats()
-        self.events: list[tuple[float, int, str]] = []  # (monotonic time, sysid, "seen"|"lost"|"back")
+        self.expected: set[int] = set()  # system ids the link reports events of (expect())
+        # (monotonic time, sysid, "seen"|"lost"|"back"), of expected system ids, the last EVENTS_KEEP
+        self.events: deque[tuple[float, int, str]] = deque(maxlen=EVENTS_KEEP)
         self._listeners: tuple[Callable[[Any], None], ...] = ()  # for every message
         self._typed: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> its listeners
         self._batch_listeners: tuple[Callable[[list], None], ...] = ()
@@ -132,6 +188,7 @@ class MavlinkLink:
         self._bad_logged = -1e9
         self.console = b""  # the first CONSOLE_KEEP bytes of console text (see _console_text)
         self._framed = False  # a valid MAVLink frame has arrived
+        self.read_bytes = 0  # what the last datagram read cost to parse (_read_datagram)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None  # a stream link's reader
@@ -141,6 +198,8 @@ class MavlinkLink:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._inbox: Inbox | None = None
         self.mav: Any = None
+        for sysid in expect:
+            self.expect(sysid)
 
     # --- life cycle ---------------------------------------------------------------------------------
 
@@ -152,7 +211,8 @@ class MavlinkLink:
         self.mav.robust_parsing = True
         if self.signing_key is not None:
             unsigned = (lambda _mav, _mid: True) if self.accept_unsigned else _UNSIGNED_OK
-            setup_signing(self.mav, self.signing_key, accept_unsigned=unsigned)
+            link_id = self._own_link_id = _take_link_id(self, self.link_id)
+            setup_signing(self.mav, self.signing_key, link_id=link_id, accept_unsigned=unsigned, clock=PROCESS_CLOCK)
         if isinstance(self._transport, UdpTransport) and self._inbox.read(self, self._transport.sock):
             self._reading = self._transport.sock
         else:
@@ -177,6 +237,9 @@ class MavlinkLink:
         if self._transport is not None:
             self._transport.close()
             self._transport = None
+        if self._own_link_id is not None:
+            _free_link_id(self._own_link_id, self)
+            self._own_link_id = None
         for _, fut in self._waiters:
             if not fut.done():
                 fut.cancel()
@@ -208,8 +271,8 @@ class MavlinkLink:
                 continue
             with self._lock:
                 msgs = parse_bytes(self.mav, data, self._transport.datagrams)
-            if any(valid_frame(m) for m in msgs):
-                self._transport.accept_source()  # udpin: answer this address from now on
+            if isinstance(self._transport, UdpTransport) and self._transport.listen:
+                self._answer(self._transport, msgs)
             if msgs:
                 try:
                     self._inbox.put(self, msgs)
@@ -218,8 +281,9 @@ class MavlinkLink:
 
     def _read_datagram(self) -> list | None:
         """One queued datagram of a UDP link (on the loop, at a drain of the inbox: Inbox._read_ready),
-        parsed; None when the link is closing or has none after all. A sender is answered once a datagram
-        of it held a valid frame."""
+        parsed (up to its first MAX_DATAGRAM_PARSE bytes: parse_bytes); None when the link is closing or
+        has none after all. `read_bytes` is then what it cost to parse (the inbox's budget per drain).
+        udpin: its sender is answered as `_answer` says."""
         transport = self._transport
         if self._stop.is_set() or not isinstance(transport, UdpTransport):
             return None
@@ -228,13 +292,45 @@ class MavlinkLink:
         except (BlockingIOError, InterruptedError):
             return None
         except OSError:  # an ICMP error of an earlier send (a peer gone away): link loss, seen by heartbeats
+            self.read_bytes = 0
             return []
+        self.read_bytes = min(len(data), MAX_DATAGRAM_PARSE)
         transport.last_source = source
         with self._lock:
             parsed = parse_bytes(self.mav, data, True)
-        if transport.listen and any(valid_frame(m) for m in parsed):
-            transport.accept_source()  # udpin: answer this address from now on
+        if transport.listen:
+            self._answer(transport, parsed)
         return parsed
+
+    def _answer(self, transport: UdpTransport, msgs: list) -> None:
+        """udpin: whether the sender of these messages (one datagram's) is answered from now on. A
+        frame signed with the key adds (or refreshes) its address; on a link that takes unsigned frames
+        a vehicle's HEARTBEAT does, of a system id the link expects (any, while it expects none), and
+        other valid frames only refresh an address already answered. An unsigned RADIO_STATUS (taken
+        unsigned: radios insert it) neither adds nor refreshes one, nor does anything on a signing link
+        that is not signed with the key. The address is kept for the sender's system id when the link
+        expects it (or expects none): the transport then drops other addresses first (accept_source)."""
+        signed_only = self.signing_key is not None and not self.accept_unsigned
+        expected = self.expected
+        refresh = False
+        for msg in msgs:
+            header = msg._header
+            mid = header.msgId
+            if mid < 0:  # bad data, an unknown message id
+                continue
+            src = header.srcSystem
+            if msg._signed:  # its signature checked: only a key holder could send it
+                transport.accept_source(src if not expected or src in expected else None)
+                return
+            if signed_only or mid == _RADIO_STATUS:
+                continue
+            if mid == _HEARTBEAT and msg.autopilot != MAV.MAV_AUTOPILOT_INVALID:
+                if not expected or src in expected:
+                    transport.accept_source(src)
+                    return
+            refresh = True
+        if refresh:
+            transport.refresh_source()
 
     def _dispatch(self, msgs: list) -> None:
         """Messages of this link to their listeners, then to its batch listeners."""
@@ -255,6 +351,8 @@ class MavlinkLink:
                 if isinstance(msg, MAV.MAVLink_unknown):
                     stats.unknown += 1  # not kept per id: the table would grow with every id a sender makes up
                 elif not self._console_text(msg):
+                    if isinstance(msg, Unparsed):
+                        stats.dropped_bytes += msg.dropped
                     self._bad_data(msg, now)
                 continue
             if accepted is not msgs:
@@ -305,11 +403,11 @@ class MavlinkLink:
         peer = self.peers.get(src)
         if peer is None:
             peer = self.peers[src] = Peer(sysid=src)
-        event = "seen" if peer.heartbeat is None else ("back" if peer.lost else None)
+        back = peer.lost or peer.heartbeat is None
         peer.compid = msg.get_srcComponent()
         peer.heartbeat, peer.last_heartbeat, peer.lost = msg, now, False
-        if event:
-            self._link_event(src, event)
+        if back and src in self.expected:
+            self._link_event(peer, "back")
 
     def _check_waiters(self, msg: Any) -> None:
         for pred, fut in list(self._waiters):
@@ -372,10 +470,30 @@ class MavlinkLink:
         self._typed = {t: left for t, cbs in self._typed.items() if (left := without(cbs))}
 
     def on_link_change(self, callback: Callable[[int, str], None]) -> None:
-        """Call callback(sysid, event) with event "seen", "lost" or "back"."""
+        """Call callback(sysid, event) with event "seen", "lost" or "back", for the system ids the link
+        expects (`expect`)."""
         self._link_callbacks.append(callback)
 
-    def _link_event(self, sysid: int, event: str) -> None:
+    def expect(self, sysid: int) -> None:
+        """Report link events of vehicle `sysid` (in `events` and to `on_link_change`'s callbacks): from
+        its first heartbeat ("seen", at once if it has been heard), then "lost" and "back". Heartbeats of
+        other system ids keep their peers up to date but give no events, so that a sender making up
+        system ids cannot fill the list or the recording. Called by wait_heartbeat and peer (every
+        command and parameter read) for the vehicle they name."""
+        if sysid in self.expected:
+            return
+        self.expected.add(sysid)
+        peer = self.peers.get(sysid)
+        if peer is not None and peer.heartbeat is not None and not peer.lost:
+            self._link_event(peer, "seen")
+
+    def _link_event(self, peer: Peer, event: str) -> None:
+        """An event of an expected vehicle; its first is "seen", and nothing is lost before it."""
+        if not peer.announced:
+            if event == "lost":
+                return
+            event, peer.announced = "seen", True
+        sysid = peer.sysid
         self.events.append((time.monotonic(), sysid, event))
         log.info("vehicle %d: %s", sysid, event)
         for cb in list(self._link_callbacks):
@@ -410,6 +528,9 @@ class MavlinkLink:
     # --- link state ---------------------------------------------------------------------------------
 
     def peer(self, sysid: int) -> Peer:
+        """What the link knows of vehicle `sysid` (which it expects from now on: `expect`)."""
+        if sysid not in self.expected:
+            self.expect(sysid)
         if sysid not in self.peers:
             self.peers[sysid] = Peer(sysid=sysid, lost=True)
         return self.peers[sysid]
@@ -419,6 +540,7 @@ class MavlinkLink:
         return p is None or p.lost or p.heartbeat is None
 
     async def wait_heartbeat(self, sysid: int, timeout: float = 10.0) -> Peer:
+        self.expect(sysid)
         p = self.peers.get(sysid)
         if p is None or p.heartbeat is None or p.lost:
             await self.wait_until(lambda: not self.is_lost(sysid), timeout, "a HEARTBEAT", f"vehicle {sysid}")
@@ -436,7 +558,8 @@ class MavlinkLink:
         for p in list(self.peers.values()):
             if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
                 p.lost = True
-                self._link_event(p.sysid, "lost")
+                if p.sysid in self.expected:
+                    self._link_event(p, "lost")
 
     # --- sending --------------------------------------------------------------------------------------
 

@@ -3,11 +3,14 @@
 
 `udpin` listens and answers the peers it has heard from (like a radio channel shared by several
 vehicles): vehicles on one link tell messages apart by target_system, so nothing depends on which
-socket address a vehicle used. An address is answered only once a datagram from it held a valid
-MAVLink frame (the owner says so with `accept_source()` after parsing: CRC and, with a key, the
-signature checked), and at most MAX_SOURCES addresses are answered: the ones heard from most
-recently, so bytes from spoofed ports neither make each write go to thousands of addresses nor push
-out the vehicles. `udpout` sends to one address and reads answers on its own port.
+socket address a vehicle used. An address is answered only once its owner, having parsed what came
+from it, says so with `accept_source()` (the controller's link: a frame signed with the key, or
+without a key a vehicle's heartbeat; never an unsigned RADIO_STATUS: MavlinkLink._answer), and
+`refresh_source()` keeps an address answered without adding one. At most MAX_SOURCES addresses are
+answered; when a new one comes, the one dropped is the least recently heard of those not known as a
+vehicle's, else of a vehicle's with more addresses than one, else the least recently heard: so bytes
+from spoofed ports neither make each write go to thousands of addresses nor push out the vehicles.
+`udpout` sends to one address and reads answers on its own port.
 """
 
 from __future__ import annotations
@@ -23,7 +26,11 @@ from pymavlink.dialects.v20 import ardupilotmega as mav_module
 from swarmctl.errors import InputError
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 
-MAX_SOURCES = 32  # udpin: the addresses answered at once (the most recently heard with a valid frame)
+MAX_SOURCES = 32  # udpin: the addresses answered at once
+# A datagram is parsed up to this many bytes (the rest is dropped, as one Unparsed bad-data message):
+# autopilots send one frame, or a few, a datagram (a MAVLink 2 frame is at most 280 bytes), and one 65 KB
+# datagram of 13-byte frames took 31 ms to parse.
+MAX_DATAGRAM_PARSE = 8192
 
 
 class Transport:
@@ -33,8 +40,12 @@ class Transport:
         """Bytes received within timeout seconds (b'' if none)."""
         raise NotImplementedError
 
-    def accept_source(self) -> None:
-        """The bytes last read held a valid MAVLink frame: answer where they came from (udpin)."""
+    def accept_source(self, vehicle: int | None = None) -> None:
+        """Answer where the bytes last read came from (udpin); `vehicle`: the system id of a vehicle
+        known to send from there."""
+
+    def refresh_source(self) -> None:
+        """The address of the bytes last read, if answered, stays answered as recently heard (udpin)."""
 
     def write(self, data: bytes) -> None:  # pragma: no cover - interface
         raise NotImplementedError
@@ -54,7 +65,8 @@ class UdpTransport(Transport):
         # UDP has no TIME_WAIT, so a port closed is free again at once without it.
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         self.peers: list[tuple[str, int]] = []
-        self._sources: OrderedDict[tuple[str, int], None] = OrderedDict()  # udpin: answered, oldest first
+        # udpin: the addresses answered, least recently heard first, each with its vehicle's system id (or None)
+        self._sources: OrderedDict[tuple[str, int], int | None] = OrderedDict()
         self.last_source: tuple[str, int] | None = None
         self.evicted = 0  # udpin: addresses no longer answered because MAX_SOURCES newer ones were heard
         self._lock = threading.Lock()
@@ -83,19 +95,45 @@ class UdpTransport(Transport):
         self.last_source = addr
         return data
 
-    def accept_source(self) -> None:
+    def accept_source(self, vehicle: int | None = None) -> None:
+        addr = self.last_source
+        if not self.listen or addr is None:
+            return
+        with self._lock:
+            sources = self._sources
+            known = sources.get(addr, _ABSENT)
+            if known is not _ABSENT:
+                sources.move_to_end(addr)
+                if vehicle is not None and known != vehicle:
+                    sources[addr] = vehicle
+                return
+            sources[addr] = vehicle
+            while len(sources) > MAX_SOURCES:
+                del sources[self._evictable()]
+                self.evicted += 1
+            self.peers = list(sources)
+
+    def _evictable(self) -> tuple[str, int]:
+        """The address dropped for a new one: the least recently heard not known as a vehicle's; else of
+        a vehicle with another address; else the least recently heard."""
+        sources = self._sources
+        count: dict[int, int] = {}
+        for addr, vehicle in sources.items():
+            if vehicle is None:
+                return addr
+            count[vehicle] = count.get(vehicle, 0) + 1
+        for addr, vehicle in sources.items():
+            if count[vehicle] > 1:
+                return addr
+        return next(iter(sources))
+
+    def refresh_source(self) -> None:
         addr = self.last_source
         if not self.listen or addr is None:
             return
         with self._lock:
             if addr in self._sources:
                 self._sources.move_to_end(addr)
-                return
-            self._sources[addr] = None
-            while len(self._sources) > MAX_SOURCES:
-                self._sources.popitem(last=False)
-                self.evicted += 1
-            self.peers = list(self._sources)
 
     def write(self, data: bytes) -> None:
         with self._lock:
@@ -180,12 +218,29 @@ def parse_bytes(mav: Any, data: bytes, datagram: bool) -> list:
     own decode(), which checks the CRC and signature and builds the message, without the byte-stream
     state machine around it (a third of the parse's time); any other datagram, and every stream, goes
     through parse_buffer. Both paths give the same messages (tests/test_mavlink_parse.py).
+
+    A datagram longer than MAX_DATAGRAM_PARSE is parsed up to that many bytes; the rest comes back as
+    one `Unparsed` (BAD_DATA) message: so what one datagram costs is bounded.
     """
     if datagram and len(data) >= _V2_MIN and data[0] == _V2_MARKER and not mav.buf_len():
         flags = data[2]
         if flags & ~_V2_SIGNED == 0 and len(data) == data[1] + (_V2_SIGNED_OVERHEAD if flags else _V2_OVERHEAD):
             return [_decode_frame(mav, data)]
+    if datagram and len(data) > MAX_DATAGRAM_PARSE:
+        msgs = parse_stream(mav, data[:MAX_DATAGRAM_PARSE], True)
+        mav.total_receive_errors += 1
+        rest = len(data) - MAX_DATAGRAM_PARSE
+        msgs.append(Unparsed(rest, f"a datagram of {len(data)} bytes: the {rest} past {MAX_DATAGRAM_PARSE} not parsed"))
+        return msgs
     return parse_stream(mav, data, datagram)
+
+
+class Unparsed(mav_module.MAVLink_bad_data):
+    """The bytes of a datagram past MAX_DATAGRAM_PARSE, dropped unparsed (`dropped` of them): bad data."""
+
+    def __init__(self, dropped: int, reason: str):
+        super().__init__(bytearray(), reason)
+        self.dropped = dropped
 
 
 def parse_stream(mav: Any, data: bytes, datagram: bool) -> list:
@@ -223,6 +278,9 @@ def _decode_frame(mav: Any, data: bytes) -> Any:
         return _bad_data(mav, frame, str(exc))
     mav.total_packets_received += 1
     return msg
+
+
+_ABSENT = object()
 
 
 def valid_frame(msg: Any) -> bool:

@@ -148,6 +148,7 @@ class Controller:
             telemetry_hz=plan.spec.flight.telemetry_hz,
             on_open=self._watch_link,
             source=str(plan.mission_file or "the mission"),
+            first_link_id=None if plan.only is None else min(plan.only) % 256,  # onboard: the vehicle's index
         )
         for i, spec in enumerate(plan.spec.vehicles):
             if plan.only is not None and i not in plan.only:
@@ -392,6 +393,7 @@ class Controller:
                 received=v.stats.received,
                 bad_data=v.stats.bad_data,
                 console_bytes=v.stats.console_bytes,
+                dropped_bytes=v.stats.dropped_bytes,
                 unknown=v.stats.unknown,
                 **link_signing(v),
             )
