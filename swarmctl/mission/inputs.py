@@ -63,13 +63,29 @@ def _b64(data: bytes) -> str:
     return base64.b64encode(zlib.compress(data, 6)).decode("ascii")
 
 
-def _unb64(text: Any, what: str) -> bytes:
+def b64_text_bound(limit: int) -> int:
+    """The longest base64 text of zlib data that decompresses to at most `limit` bytes (zlib's compressBound)."""
+    packed = limit + (limit >> 12) + (limit >> 14) + (limit >> 25) + 13
+    return 4 * ((packed + 2) // 3)
+
+
+def inflate(text: Any, limit: int, what: str) -> bytes:
+    """base64 of zlib data decompressed, refused (InputsError) when it would be more than `limit` bytes: at
+    most `limit` bytes are ever decompressed, so a decompression bomb costs nothing."""
     if not isinstance(text, str):
         raise InputsError(f"{what} is not a string")
+    if len(text) > b64_text_bound(limit):
+        raise InputsError(f"{what} is {len(text):,} characters, longer than {limit:,} bytes can compress to")
     try:
-        return zlib.decompress(base64.b64decode(text, validate=True))
+        inflater = zlib.decompressobj()
+        raw = inflater.decompress(base64.b64decode(text, validate=True), limit + 1)
     except (ValueError, zlib.error) as exc:
         raise InputsError(f"{what} does not decode ({exc})") from None
+    if len(raw) > limit or inflater.unconsumed_tail:
+        raise InputsError(f"{what} decompresses to more than the {limit:,} bytes it may hold")
+    if not inflater.eof or inflater.unused_data:
+        raise InputsError(f"{what} does not decode (the zlib data is cut short or followed by other bytes)")
+    return raw
 
 
 def _delta(flat: np.ndarray, values: np.ndarray) -> bytes:
@@ -157,7 +173,7 @@ class InputsDecoder:
         return out
 
     def _delta(self, text: str, what: str) -> tuple[np.ndarray, np.ndarray]:
-        raw = _unb64(text, what)
+        raw = inflate(text, 6 * self.width * self.height, what)  # at most every cell: uint32 index, uint16 value
         if len(raw) % 6:
             raise InputsError(f"{what} holds {len(raw)} bytes, not 6 a cell")
         n = len(raw) // 6
@@ -177,7 +193,7 @@ class InputsDecoder:
                 raise InputsError(f"{name} has {len(line[name])} entries for {a} vehicles")
         maps: list[Any] = [None] * len(line["maps"])
         values = np.stack([self._map(line, u, v, maps) for u, v in enumerate(me)])
-        raw = _unb64(line["positions"], "positions")
+        raw = inflate(line["positions"], a * self.vehicles * 3 * 2, "positions")
         if len(raw) != a * self.vehicles * 3 * 2:
             raise InputsError(f"positions hold {len(raw)} bytes, not {a} x {self.vehicles} x 3 int16")
         table = np.frombuffer(raw, dtype="<i2").reshape(a, self.vehicles, 3).astype(np.int64)

@@ -7,10 +7,12 @@ from pathlib import Path
 
 import click
 
-from swarmctl.bounds import real, whole, writable_folder
+from swarmctl.bounds import real, require_memory, whole, writable_folder
 from swarmctl.errors import InputError
 
 MAX_PANELS = 100  # pictures one --steps may ask for
+MIN_FPS, MAX_FPS = 0.1, 60.0  # --fps: a frame every 10 s at the slowest (ffmpeg refuses rates near 0)
+ANIMATION_FRAME_BYTES = 3 * 288 * 320  # one GIF frame of the three panels at 80 dpi, kept until it is written
 MIN_PROBABILITY = 0.01  # --verify's default: a softmax move less likely than this (draw not reproduced) fails
 
 
@@ -82,9 +84,19 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     "shows what the chosen vehicles knew together.",
 )
 @click.option(
-    "--fps", type=real(0, 60, above=True), default=10.0, show_default=True, help="Frames per second of the animation."
+    "--fps",
+    type=real(MIN_FPS, MAX_FPS),
+    default=10.0,
+    show_default=True,
+    help="Frames per second of the animation (0.1 to 60).",
 )
-@click.option("--grid", "grid_file", type=click.Path(path_type=Path), default=None, help="grid.npz for a bare .tlog.")
+@click.option(
+    "--grid",
+    "grid_file",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="grid.npz for a bare .tlog (or a recording without grid.npz); a recording's own grid is always used.",
+)
 @click.option(
     "--buildings",
     type=click.Path(path_type=Path),
@@ -104,7 +116,8 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     "--verify",
     is_flag=True,
     help="Instead of the outputs: decide every recorded decision again with the recorded policy on the recorded "
-    "beliefs and list the mismatches (exit 1 when there are any); writes verify.json to --out.",
+    "beliefs and list the mismatches (exit 1 when there are any, 2 when no decision could be checked); writes "
+    "verify.json to --out.",
 )
 @click.option(
     "--model",
@@ -173,6 +186,11 @@ def replay_command(
     ) as bar:
         replay = rmod.load(recording, list(vehicles) or None, grid_file, buildings, progress=bar.update)
     first, last = _frame_range(replay, from_step, to_step)
+    require_memory(
+        (last - first + 1) * ANIMATION_FRAME_BYTES,
+        f"the animation of {last - first + 1:,} frames",
+        "animate a part of the replay with --from-step and --to-step",
+    )
     folder.mkdir(parents=True, exist_ok=True)
     for s in wanted or []:
         _check_step(replay, "--steps", s)
@@ -217,5 +235,11 @@ def _verify(recording: Path, folder: Path, model: Path | None, min_probability: 
     if not quiet:
         for line in report.lines():
             click.echo(line)
+    if report.nothing_checked:  # unreadable input: no decision could be decided again
+        why = ", ".join(f"{n}: {w}" for w, n in report.unchecked.most_common(1)) or "no inputs line was read"
+        raise InputError(
+            f"{recording}: none of its {report.decisions} recorded decisions could be checked ({why}); the "
+            "recording cannot be verified (inputs.jsonl is damaged or missing its lines)"
+        )
     if not report.ok:
         raise click.exceptions.Exit(EXIT_FAILED)

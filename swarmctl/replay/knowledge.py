@@ -18,9 +18,6 @@ come from the DELTAs when the log has them.
 
 from __future__ import annotations
 
-import base64
-import binascii
-import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -36,6 +33,7 @@ from swarmctl.knowledge.codec import (
     chunk_mask,
 )
 from swarmctl.knowledge.model import Delta, Detection
+from swarmctl.mission.inputs import InputsError, inflate
 from swarmctl.replay.tlog import TlogIndex
 
 NEVER = np.iinfo(np.int32).max
@@ -74,12 +72,13 @@ def from_snapshots(
     lines: list[dict], names: list[str], width: int, height: int, frame_of_step: dict[int, int]
 ) -> tuple[np.ndarray, dict, list[str]]:
     """(first, targets, problems) from knowledge.jsonl lines; a snapshot that does not decode to a
-    W x H mask with its stated cell count is skipped and named in problems."""
+    W x H mask with its stated cell count (or would decompress to more) is skipped and named in problems."""
     first = empty_first(len(names), width, height)
     targets: dict[tuple[int, int], tuple[int, str]] = {}
     problems: list[str] = []
     index = {n: i for i, n in enumerate(names)}
     cells = width * height
+    mask_bytes = (cells + 7) // 8  # numpy.packbits of the W x H mask
     for e in lines:
         v = index.get(e["vehicle"])
         if v is None:
@@ -87,12 +86,10 @@ def from_snapshots(
         frame = frame_of_step.get(int(e["step"]))
         if frame is None:
             continue
-        try:
-            bits = np.unpackbits(
-                np.frombuffer(zlib.decompress(base64.b64decode(e["explored"], validate=True)), np.uint8)
-            )
-        except (binascii.Error, zlib.error, ValueError):
-            problems.append(f"step {e['step']} {e['vehicle']}: explored is not base64 of zlib data")
+        try:  # never more than the mask's bytes decompressed: a zlib bomb is refused, not inflated
+            bits = np.unpackbits(np.frombuffer(inflate(e["explored"], mask_bytes, "explored"), np.uint8))
+        except InputsError as exc:
+            problems.append(f"step {e['step']} {e['vehicle']}: {exc}")
             continue
         if bits.size < cells or bits[cells:].any() or int(bits[:cells].sum()) != e["cells"]:
             problems.append(

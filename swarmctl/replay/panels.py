@@ -245,8 +245,24 @@ def write_animation(
     palette = None
     paths = [out / "animation.gif"]
     mp4 = None
+    failed: str | None = None
+
+    def mp4_failed(exc: Exception) -> None:  # ffmpeg is optional: a failure costs the MP4, not the replay
+        nonlocal mp4, failed
+        failed = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        if mp4 is not None:
+            try:
+                mp4.close()
+            except Exception:  # noqa: BLE001  ffmpeg already failed; its second complaint adds nothing
+                pass
+        mp4 = None
+        (out / "animation.mp4").unlink(missing_ok=True)
+
     try:
-        mp4 = _Mp4.open(out / "animation.mp4", fps, fig.fig)
+        try:
+            mp4 = _Mp4.open(out / "animation.mp4", fps, fig.fig)
+        except Exception as exc:  # noqa: BLE001  whatever ffmpeg (or imageio) raises on start
+            mp4_failed(exc)
         if mp4 is None or mp4.gen is not None:  # matplotlib's own ffmpeg writer draws the whole figure
             fig.blit()
         for f in frames:
@@ -257,14 +273,23 @@ def write_animation(
                 palette = image.quantize(colors=255, method=Image.Quantize.MEDIANCUT)
             gif_frames.append(image.quantize(palette=palette, dither=Image.Dither.NONE))
             if mp4 is not None:
-                mp4.add(rgb)
+                try:
+                    mp4.add(rgb)
+                except Exception as exc:  # noqa: BLE001  a broken pipe: ffmpeg stopped
+                    mp4_failed(exc)
             if progress is not None:
                 progress(1)
     finally:
         if mp4 is not None:
-            mp4.close()
-            paths.append(mp4.path)
+            try:
+                mp4.close()
+                paths.append(mp4.path)
+            except Exception as exc:  # noqa: BLE001  ffmpeg's exit status or its last complaint
+                mp4 = None
+                mp4_failed(exc)
         fig.close()
+    if failed is not None:
+        replay.notes.append(f"animation.mp4 not written: ffmpeg failed ({failed}); animation.gif has the animation")
     duration = max(20, int(round(1000 / fps)))
     gif_frames[0].save(paths[0], save_all=True, append_images=gif_frames[1:], duration=duration, loop=0)
     return paths

@@ -5,10 +5,12 @@ returns only the files it wrote."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
+from swarmctl.bounds import finite
 from swarmctl.replay.panels import _plt
 from swarmctl.replay.recording import Replay
 
@@ -63,6 +65,7 @@ def write_plots(replay: Replay, out: Path) -> list[Path]:
     # the summary's count: 3-D over the whole flight (distance_3d_m); older recordings: the search, horizontal
     summaries = [v.summary or {} for v in replay.vehicles]
     counted = [s.get("distance_3d_m", s.get("distance_m")) for s in summaries]
+    counted = [c if finite(c, 0.0, math.inf) else None for c in counted]  # a damaged summary's text or NaN
     if any(c is not None for c in counted):
         label = "whole flight, 3-D (summary)" if any("distance_3d_m" in s for s in summaries) else "search (summary)"
         ax.bar(pos + 0.2, [c or 0 for c in counted], 0.4, color="lightgrey", edgecolor="black", label=label)

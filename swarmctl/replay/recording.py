@@ -21,19 +21,20 @@ from typing import Any
 import numpy as np
 import shapely
 
-from swarmctl.bounds import INPUT_MAX_BYTES, load_json
+from swarmctl.bounds import INPUT_MAX_BYTES, load_json, require_memory
 from swarmctl.errors import InputError
 from swarmctl.geo.buildings import load_buildings
 from swarmctl.geo.grid import GeoGrid
 from swarmctl.replay import knowledge as kmod
 from swarmctl.replay.fit import grid_around, grid_from_cells
-from swarmctl.replay.lines import Lines, read_lines
+from swarmctl.replay.lines import MAX_VEHICLES, Lines, read_lines
 from swarmctl.replay.telemetry import GEOD, VehicleTelemetry, path_m, read_telemetry
 from swarmctl.replay.tlog import Damage, TlogIndex, index_tlog
 from swarmctl.replay.truth import TRUTH_FILE, Truth, load_truth
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 MAX_TIME_FRAMES = 400
+FRAME_BYTES = 64  # per vehicle and frame: cell (16), lat and lon (16), state, and the page's copies
 HOVER_STILL_M, HOVER_MIN_S = 2.0, 10.0  # a foreign log's hover point: airborne, within 2 m for 10 s
 COLOURS = (
     "#1f77b4",
@@ -191,23 +192,34 @@ class _Loader:
         if lines is not None and not lines.events and not (tlog_path.is_file() and tlog_path.stat().st_size):
             raise InputError(f"{events_path}: no readable event in it and no mission.tlog beside it; nothing to replay")
         tlog = self._tlog(tlog_path) if tlog_path.is_file() and tlog_path.stat().st_size else None
-        telemetry = read_telemetry(tlog) if tlog is not None else {}
+        telemetry = self._telemetry(tlog) if tlog is not None else {}
         mission = lines.of("mission")[0] if lines is not None and lines.of("mission") else None
-        names = list(mission["vehicles"]) if mission else []
+        names = list(dict.fromkeys(mission["vehicles"])) if mission else []
         sysids = self._sysids(lines)
-        for n in sysids:
-            if n not in names:
-                names.append(n)
+        known = set(names)
+        extra = [n for n in sysids if n not in known]
+        if len(names) + len(extra) > MAX_VEHICLES:
+            self.notes.append(
+                f"{events_path.name}: {len(names) + len(extra):,} vehicles named, over the {MAX_VEHICLES} a mission "
+                f"may have: replayed the first {MAX_VEHICLES} (mission order)"
+            )
+            extra = extra[: max(0, MAX_VEHICLES - len(names))]
+        names += extra
         if not names:
             return self.bare_tlog(tlog_path, only, grid_file, buildings, tlog=tlog, telemetry=telemetry)
         steps = _step_lines(lines)
         if steps:
+            require_memory(
+                (max(steps) + 1) * len(names) * FRAME_BYTES,
+                f"{events_path}: {max(steps) + 1:,} frames of {len(names)} vehicles",
+                "replay fewer vehicles with --vehicle",
+            )
             frame_step = np.arange(0, max(steps) + 1)
             frame_time = _step_times(steps, lines, frame_step)
         else:
             frame_time, frame_step = _time_frames(telemetry, lines)
             self.notes.append("no step lines: frames are evenly spaced in time")
-        grid, note = self._grid(grid_file or (folder / "grid.npz"), telemetry, tlog, frame_time)
+        grid, note = self._recording_grid(grid_file, mission, telemetry, tlog, frame_time)
         selected = _select(names, only, {n: sysids.get(n) for n in names})
         vehicles = [
             self._vehicle(n, names.index(n), sysids.get(n), k, grid, frame_time, frame_step, steps, lines, telemetry)
@@ -215,13 +227,18 @@ class _Loader:
         ]
         summary = _read_json(folder / "summary.json", self)
         if summary is not None:
+            entries = summary.get("vehicles", [])
+            if not isinstance(entries, list) or not all(isinstance(s, dict) for s in entries):
+                self.notes.append("summary.json: vehicles is not a list of objects; replayed without its figures")
+                entries = []
             for v in vehicles:
-                v.summary = next((s for s in summary.get("vehicles", []) if s.get("name") == v.name), None)
+                v.summary = next((s for s in entries if s.get("name") == v.name), None)
         name = str(mission["name"]) if mission else folder.name
         replay = Replay(folder, "recording", name, grid, note, vehicles, names, frame_time, frame_step)
         replay.policy = str(mission["policy"]) if mission else None
         ends = lines.of("end") if lines is not None else []
-        replay.outcome = ends[-1]["outcome"] if ends else (summary or {}).get("outcome")
+        outcome = (summary or {}).get("outcome")
+        replay.outcome = ends[-1]["outcome"] if ends else (outcome if isinstance(outcome, str) else None)
         replay.summary, replay.events = summary, lines
         return self._finish(replay, tlog, buildings)
 
@@ -235,7 +252,7 @@ class _Loader:
         telemetry: dict | None = None,
     ) -> Replay:
         tlog = tlog if tlog is not None else self._tlog(path)
-        telemetry = telemetry if telemetry is not None else read_telemetry(tlog)
+        telemetry = telemetry if telemetry is not None else self._telemetry(tlog)
         if not telemetry:
             raise InputError(
                 f"{path}: no vehicle in it (no autopilot HEARTBEAT among {len(tlog)} MAVLink messages); "
@@ -282,6 +299,40 @@ class _Loader:
             self.damage[path.name] = tlog.damage
         return tlog
 
+    def _telemetry(self, tlog: TlogIndex) -> dict[int, VehicleTelemetry]:
+        telemetry = read_telemetry(tlog)
+        bad = {s: v.bad_positions for s, v in sorted(telemetry.items()) if v.bad_positions}
+        if bad:
+            each = ", ".join(f"system {s}: {n}" for s, n in bad.items())
+            self.notes.append(
+                f"{tlog.path.name}: skipped {sum(bad.values())} positions outside -90..90 latitude, -180..180 "
+                f"longitude ({each})"
+            )
+        return telemetry
+
+    def _recording_grid(self, grid_file: Any, mission: dict | None, telemetry: dict, tlog, frame_time: np.ndarray):
+        """The recording's own grid.npz; --grid only for a recording without one, and then it must be the
+        size the mission line flew."""
+        own = self.folder / "grid.npz"
+        if grid_file is None:
+            return self._grid(own, telemetry, tlog, frame_time)
+        given = Path(grid_file)
+        if own.is_file():
+            if given.is_file() and _same_file(given, own):
+                return self._grid(own, telemetry, tlog, frame_time)
+            raise InputError(
+                f"--grid {grid_file}: the recording has its own grid ({own}); --grid is for a .tlog or a recording "
+                "without grid.npz: leave --grid out"
+            )
+        grid, note = self._grid(given, telemetry, tlog, frame_time)
+        flown = mission.get("grid") if mission else None
+        if flown is not None and list(flown) != [grid.width, grid.height]:
+            raise InputError(
+                f"--grid {grid_file}: a {grid.width} x {grid.height} grid, not the recording's: its mission flew "
+                f"{flown[0]} x {flown[1]} cells; give the grid.npz the mission flew (or leave --grid out)"
+            )
+        return grid, note
+
     @staticmethod
     def _sysids(lines: Lines | None) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -310,8 +361,11 @@ class _Loader:
                 )
         fixes = [(v.lat, v.lon) for v in telemetry.values() if v.lat.size]
         if not fixes:
+            bad = sum(v.bad_positions for v in telemetry.values())
+            why = f" ({bad} positions out of range skipped)" if bad else ""
+            where = tlog.path if tlog is not None else self.folder
             raise InputError(
-                f"{self.folder}: no grid.npz and no position in the log to fit a grid around; give --grid FILE"
+                f"{where}: no grid.npz and no position in the log to fit a grid around{why}; give --grid FILE"
             )
         grid = grid_around(np.concatenate([f[0] for f in fixes]), np.concatenate([f[1] for f in fixes]))
         return grid, f"grid {grid.width} x {grid.height} of {grid.cell:g} m cells fitted around the tracks"
@@ -479,6 +533,16 @@ def _select(names: list[str], only: list[str] | None, sysids: dict[str, int | No
     return out
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths are one file, or two files with the same bytes."""
+    try:
+        if a.samefile(b):
+            return True
+        return a.stat().st_size == b.stat().st_size and a.read_bytes() == b.read_bytes()
+    except OSError:
+        return False
+
+
 def _read_json(path: Path, loader: _Loader) -> dict | None:
     if not path.is_file():
         return None
@@ -487,7 +551,10 @@ def _read_json(path: Path, loader: _Loader) -> dict | None:
     except InputError as exc:
         loader.notes.append(f"{path.name}: not readable ({str(exc).removeprefix(f'{path}: ')}); replayed without it")
         return None
-    return body if isinstance(body, dict) else None
+    if not isinstance(body, dict):
+        loader.notes.append(f"{path.name}: not a JSON object; replayed without it")
+        return None
+    return body
 
 
 def _step_lines(lines: Lines | None) -> dict[int, dict]:

@@ -3,7 +3,8 @@
 Vehicles are the system ids that send autopilot HEARTBEATs (autopilot not MAV_AUTOPILOT_INVALID);
 ground stations and companion computers are left out. Per vehicle:
 - positions from GLOBAL_POSITION_INT (GPS_RAW_INT when a log has none): lat, lon, altitude above home,
-  at most five a second (the first of each 0.2 s);
+  at most five a second (the first of each 0.2 s); a position outside -90..90 latitude or -180..180
+  longitude (no receiver reports one) is skipped and counted (`bad_positions`), never projected;
 - battery from SYS_STATUS.battery_remaining (BATTERY_STATUS when SYS_STATUS never gives it), in %;
 - flight modes from the heartbeats (pymavlink's mode names: ArduPilot by vehicle type, PX4);
 - link: "lost" from the moment heartbeats stop for LOST_AFTER_S (3 s, as swarmctl's link watch), "ok"
@@ -44,6 +45,7 @@ class VehicleTelemetry:
     modes: list[tuple[float, str]] = field(default_factory=list)  # (time, mode) at each change
     heartbeats: np.ndarray = field(default_factory=lambda: np.zeros(0))
     armed: list[tuple[float, bool]] = field(default_factory=list)  # at each change
+    bad_positions: int = 0  # positions skipped: latitude or longitude out of range
 
     def link(self, end: float | None = None) -> list[tuple[float, str]]:
         """(time, "ok" | "lost") at each change of the link, from the heartbeat times."""
@@ -151,8 +153,11 @@ def _positions(index: TlogIndex, vehicles: dict[int, VehicleTelemetry]) -> None:
                 got[s] = a
     for s, a in got.items():
         a = a[(a[:, 1] != 0) | (a[:, 2] != 0)]  # (0, 0): no fix yet
-        a = a[np.argsort(a[:, 0], kind="stable")]
+        good = (np.abs(a[:, 1]) <= 90.0) & (np.abs(a[:, 2]) <= 180.0) & np.isfinite(a[:, 3])
         v = vehicles[s]
+        v.bad_positions = int((~good).sum())
+        a = a[good]
+        a = a[np.argsort(a[:, 0], kind="stable")]
         v.pos_t, v.lat, v.lon, v.alt = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
 
 

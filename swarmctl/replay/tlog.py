@@ -9,10 +9,15 @@ checksum) are skipped: the walk looks for the next record that is whole, has a k
 valid CRC and a plausible timestamp (a frame of a message id the dialect does not know is taken when
 it is whole and another record follows it), and every skipped stretch is kept as a `Damage` (byte offset,
 length, why). Messages are then decoded by pymavlink only for the message ids a caller asks for.
+
+Only a regular file of at most TLOG_MAX_BYTES is read (a device such as /dev/zero, a pipe or a larger
+file is refused with one line before a byte is read), and with one read bounded by that size.
 """
 
 from __future__ import annotations
 
+import os
+import stat
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +27,10 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from pymavlink.generator.mavcrc import x25crc
 
+from swarmctl.bounds import GIB, read_limited, size_text
 from swarmctl.errors import InputError
+
+TLOG_MAX_BYTES = GIB  # 14 times the 74 MB tlog of a 50-vehicle, 200-step mission; as events.jsonl's cap
 
 V1, V2 = 0xFE, 0xFD
 STAMP = 8
@@ -169,14 +177,29 @@ def _why(data: bytes, p: int, q: int) -> str:
     return "not a valid MAVLink record"
 
 
+def read_tlog(path: Path) -> bytes:
+    """The bytes of a .tlog: a regular file of at most TLOG_MAX_BYTES (InputError, one line, otherwise)."""
+    try:
+        info = os.stat(path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot be read ({exc.strerror}); give a .tlog file or a recording folder") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise InputError(
+            f"{path}: not a regular file (a device, a pipe or a socket); give a .tlog file or a recording folder"
+        )
+    if info.st_size > TLOG_MAX_BYTES:
+        raise InputError(
+            f"{path}: {size_text(info.st_size)}, over the {size_text(TLOG_MAX_BYTES)} a .tlog may have; "
+            "replay a shorter log (split it by time)"
+        )
+    return read_limited(path, "telemetry log (.tlog)", TLOG_MAX_BYTES)
+
+
 def index_tlog(path: str | Path, progress: Any = None) -> TlogIndex:
     """Index every valid record of a .tlog; InputError (one line) for an empty file or one that holds no
     MAVLink telemetry at all. `progress(bytes_done)` is called now and then."""
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise InputError(f"{path}: cannot be read ({exc.strerror}); give a .tlog file or a recording folder") from None
+    data = read_tlog(path)
     if not data:
         raise InputError(f"{path}: the file is empty; a telemetry log holds timestamped MAVLink packets")
     n = len(data)

@@ -108,8 +108,13 @@ class Report:
         return self.reproduced + self.ties + self.probable + sum(m.kind == "decision" for m in self.mismatches)
 
     @property
+    def nothing_checked(self) -> bool:
+        """The recording has decisions and not one could be checked (its inputs are unreadable): no proof."""
+        return self.decisions > 0 and self.checked == 0
+
+    @property
     def ok(self) -> bool:
-        return not self.mismatches
+        return not self.mismatches and not self.nothing_checked
 
     def lines(self) -> list[str]:
         """The report as printed."""
@@ -126,12 +131,15 @@ class Report:
             out.append(f"not checked: {n} decisions: {why}")
         out += [f"mismatch: {m.text()}" for m in self.mismatches]
         out += [f"note: {n}" for n in self.notes]
-        out.append("verify: every decision reproduced" if self.ok else f"verify: {len(self.mismatches)} mismatches")
+        if self.nothing_checked:
+            out.append(f"verify: none of the {self.decisions} decisions could be checked")
+        else:
+            out.append("verify: every decision reproduced" if self.ok else f"verify: {len(self.mismatches)} mismatches")
         return out
 
     def as_dict(self) -> dict:
         d = asdict(self)
-        d.update(checked=self.checked, ok=self.ok, unchecked=dict(self.unchecked))
+        d.update(checked=self.checked, ok=self.ok, nothing_checked=self.nothing_checked, unchecked=dict(self.unchecked))
         return d
 
 
