@@ -255,6 +255,8 @@ def files(tmp_path_factory) -> dict[str, Path]:
     (m / "key-short" / "short.key").write_bytes(b"0123")
     sparse(m / "key-huge" / "huge.key", 10 * 2**20)
     f["mission"] = mission(m / "good")
+    f["mission-one-cell"] = mission(m / "one-cell")
+    small_grid(1, 1).save(m / "one-cell" / "grid.npz")  # room for a vehicle, none for its target
     text("broken.toml", "[mission\nname = ")
     text("binary.toml", bytes(range(256)))
     f["hugemission.toml"] = d / "hugemission.toml"
@@ -516,6 +518,11 @@ CASES: list[tuple[str, list[str], str]] = [
     ("demo-speedup-neg", [*DEMO, "--speedup", "-1"], "--speedup"),
     ("demo-targets-0", [*DEMO, "--targets", "0"], "--targets"),
     ("demo-targets-too-many", [*DEMO, "--targets", "5000"], "--targets"),
+    (
+        "demo-grid-too-small",
+        ["demo", "--mission", "{mission-one-cell}", "--uavs", "1", "--out", "{out}/one-cell"],
+        "too few for 1 vehicles and 1 hidden targets",
+    ),
     ("demo-time-limit-nan", [*DEMO, "--time-limit", "nan"], "--time-limit"),
     ("demo-time-limit-inf", [*DEMO, "--time-limit", "inf"], "--time-limit"),
     ("demo-time-limit-0", [*DEMO, "--time-limit", "0"], "--time-limit"),

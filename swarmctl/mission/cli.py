@@ -203,6 +203,11 @@ def demo_command(
     room = int(grid.largest_free_region().sum()) - uavs  # targets hide there, never on a launch cell
     if targets is not None and targets > room:
         raise InputError(f"--targets {targets}: the grid's largest free region holds {room} besides the launch cells")
+    if targets is None and uavs > room:  # one target a vehicle by default
+        raise InputError(
+            f"demo: the grid's largest free region has {room + uavs} cells, too few for {uavs} vehicles and "
+            f"{uavs} hidden targets; use fewer --uavs or a larger grid"
+        )
     folder = _out_folder(out, "demo")
     model = Channel(channel, cell_size=grid.cell, loss=loss)
     try:
