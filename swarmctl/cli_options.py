@@ -113,8 +113,20 @@ WORLD_KEYS = (
 
 
 def world_config(kwargs: dict) -> WorldConfig:
-    """Pop the world's options from a command's kwargs and build the validated config."""
-    return WorldConfig(**{k: kwargs.pop(k) for k in WORLD_KEYS})
+    """Pop the world's options from a command's kwargs and build the validated config (options that
+    only one setting of another reads are refused with the other, not ignored)."""
+    values = {k: kwargs.pop(k) for k in WORLD_KEYS}
+    require(
+        values["loss"] == 0 or values["channel"] == "fixed",
+        f"--loss {values['loss']:g}: only --channel fixed reads it (the channel is {values['channel']}); "
+        "add --channel fixed, or leave --loss out",
+    )
+    require(
+        values["clusters"] == 1 or values["scenario"] == "cluster",
+        f"--clusters {values['clusters']}: only --scenario cluster reads it (the scenario is "
+        f"{values['scenario']}); leave --clusters out",
+    )
+    return WorldConfig(**values)
 
 
 def require(condition: bool, message: str) -> None:

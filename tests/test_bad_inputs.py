@@ -323,6 +323,8 @@ CASES: list[tuple[str, list[str], str]] = [
     ("eval-loss-nan", [*EVAL, "--channel", "fixed", "--loss", "nan"], "--loss"),
     ("eval-loss-over-1", [*EVAL, "--channel", "fixed", "--loss", "1.5"], "--loss"),
     ("eval-loss-minus-inf", [*EVAL, "--loss", "-inf"], "--loss"),
+    ("eval-loss-without-fixed", [*EVAL, "--loss", "0.5"], "only --channel fixed reads it"),
+    ("eval-clusters-sparse", [*EVAL, "--scenario", "sparse", "--clusters", "3"], "only --scenario cluster"),
     ("eval-cell-nan", [*EVAL, "--channel", "model", "--cell-size", "nan"], "--cell-size"),
     ("eval-cell-inf", [*EVAL, "--channel", "model", "--cell-size", "inf"], "--cell-size"),
     ("eval-cell-0", [*EVAL, "--cell-size", "0"], "--cell-size"),
