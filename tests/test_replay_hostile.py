@@ -282,3 +282,12 @@ def test_grid_on_a_recording_names_the_option_not_the_truth_file(demo, tmp_path,
     replay = load(demo, grid_file=demo / "grid.npz")
     own = GeoGrid.load(demo / "grid.npz")
     assert (replay.grid.width, replay.grid.height) == (own.width, own.height) == (10, 10)
+
+
+def test_a_grid_of_another_place_is_said_to_hold_none_of_the_positions(tmp_path):
+    out = tmp_path / "out"
+    assert main(["replay", str(COPTER), "--grid", str(CHICAGO_GRID), "--out", str(out), "--quiet"]) == 0
+    assert "sysid1: none of its positions lies in the grid" in (out / "summary.txt").read_text()
+    fitted = tmp_path / "fitted"
+    assert main(["replay", str(COPTER), "--out", str(fitted), "--quiet"]) == 0
+    assert "none of its positions" not in (fitted / "summary.txt").read_text()

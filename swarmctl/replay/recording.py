@@ -398,6 +398,11 @@ class _Loader:
                     x, y = grid.latlon_to_cells(lat[ok], lon[ok])
                     inside = grid.in_grid(x, y)
                     cells[np.flatnonzero(ok)[inside]] = np.stack([x[inside], y[inside]], axis=1)
+                    if not inside.any():
+                        self.notes.append(
+                            f"{name}: none of its positions lies in the grid (a log of another place?); leave "
+                            "--grid out to grid round the tracks"
+                        )
                 states = _modes_at(tel, frame_time)
         known = cells[:, 0] >= 0
         clat, clon = np.full(frames, np.nan), np.full(frames, np.nan)
