@@ -215,12 +215,21 @@ class KnowledgeTrust:
 
     def _sensable(self, delta: Delta, radius: float) -> bool:
         """Whether every cell of `delta` lies where it can have been sensed (the module docstring)."""
-        cells = delta.cells.astype(np.float64)
+        cells = delta.cells
         if delta.cell is not None:  # most deltas: the footprint round the position they report
-            near = np.hypot(cells[:, 0] - delta.cell[0], cells[:, 1] - delta.cell[1]) <= radius
-            if near.all():
-                return True
-            cells = cells[~near]
+            cx, cy = delta.cell
+            reach = radius * radius
+            if len(cells) <= 64:  # a step's few new cells: in Python, cheaper than numpy's calls
+                far = [(x, y) for x, y in cells.tolist() if (x - cx) ** 2 + (y - cy) ** 2 > reach]
+                if not far:
+                    return True
+                cells = np.asarray(far, dtype=np.int64)
+            else:
+                near = (cells[:, 0] - cx) ** 2 + (cells[:, 1] - cy) ** 2 <= reach
+                if near.all():
+                    return True
+                cells = cells[~near]
+        cells = cells.astype(np.float64)
         if delta.repair:
             if self._reach is None:
                 parts = [t.reach(radius, prehistory=True) for t in self._track.values() if t.steps]
