@@ -107,8 +107,10 @@ def check_signature(mav: Any, msgbuf: bytearray, src_system: int, src_component:
     if last is not None:
         if timestamp <= last:
             return False  # a replayed or reordered frame
-    elif timestamp + NEW_STREAM_SLACK < signing.timestamp:
-        return False  # a new stream from long ago: a replay
+    elif timestamp + NEW_STREAM_SLACK < now_timestamp():
+        # a new stream from long ago: a replay. Against the wall clock, not signing.timestamp, which a
+        # vehicle whose clock runs ahead pushes forward (on a shared clock, for every link)
+        return False
     signing.stream_timestamps[stream] = timestamp
     signing.timestamp = max(signing.timestamp, timestamp)
     return True

@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.knowledge.amplification import KINDS, measure
 from swarmctl.knowledge.bus import KnowledgeBus
 from swarmctl.knowledge.codec import KnowledgeCodec
-from swarmctl.knowledge.exchange import DATAGRAM_PARSE, POLL_BYTES, READ_BATCH, KnowledgeExchange
+from swarmctl.knowledge.exchange import DATAGRAM_MIN, DATAGRAM_PARSE, POLL_BYTES, KnowledgeExchange
 from swarmctl.knowledge.model import Delta, Detection, Knowledge, disc_cells
 from swarmctl.knowledge.trust import (
     FIRST_AHEAD,
@@ -128,18 +128,29 @@ def test_a_sender_never_leads_the_receiver_by_more_than_its_credit(now, leads, w
     assert trust.admit(delta(1, step, None), sysid=2)  # the newest step again: always taken
 
 
-def test_an_old_step_is_checked_against_the_positions_around_it():
-    trust = KnowledgeTrust(MEMBERS, fov=2.0)
-    trust.advance(20)
-    for s in range(10, 21):
-        assert trust.admit(delta(1, s, (s - 10, 0)), sysid=2)
-    # a find repeated with the step and cell it was made from: taken
-    assert trust.admit(Detection(1, 15, (5, 0), False, np.array([[5, 1]])), sysid=2)
-    # step 15 "at (0, 10)": 10 cells from the step-15 position heard (before: 15 cells allowed from step 20)
-    assert not trust.admit(Detection(1, 15, (0, 10), False, np.array([[0, 10]])), sysid=2)
-    # step 0 "at (8, 8)": 16 cells from the first position heard, at step 10 (before: 22 allowed from step 20)
-    assert not trust.admit(Detection(1, 0, (8, 8), False, np.array([[8, 8]])), sysid=2)
-    assert trust.counters()["speed"] == 2
+def test_an_agent_restarted_is_believed_from_where_its_vehicle_was():
+    """A companion computer rebooted mid-mission: its agent counts its steps from 0 again, from the
+    cell its vehicle holds; its positions, deltas and finds are taken from the first on."""
+    trust = KnowledgeTrust(MEMBERS, fov=2.0, clock=lambda: 0.0)
+    for s in range(0, 301):
+        trust.advance(s)
+        assert trust.admit(delta(1, s, (min(s, 40), 5)), sysid=2)
+    for s in range(1, 51):  # restarted at (40, 5), flying west a cell a step
+        trust.advance(300 + s)
+        assert trust.admit(cells_delta(1, s, (40 - s // 2, 5), [(40 - s // 2, 6)]), sysid=2)
+    assert trust.admit(Detection(1, 50, (15, 5), False, np.array([[15, 6]])), sysid=2)
+    assert trust.counters()["speed"] == 0 and trust.counters()["step"] == 0
+
+
+def test_a_late_agent_hears_senders_more_than_first_ahead_in_the_end():
+    seconds = [0.0]
+    trust = KnowledgeTrust(MEMBERS, clock=lambda: seconds[0])
+    taken = []
+    for k in range(3000):  # the sender 5,000 steps ahead, both at one step a second
+        seconds[0] = float(k)
+        trust.advance(k)
+        taken.append(trust.admit(delta(1, 5000 + k, None), sysid=2))
+    assert not taken[0] and taken[-1]
 
 
 def test_a_delta_carries_only_cells_its_sender_can_have_sensed():
@@ -184,8 +195,11 @@ def test_an_honest_delta_of_unpublished_steps_is_taken(start, moves, heard, fov)
     assert trust.admit(cells_delta(1, 5 + len(moves), cell, cells), sysid=2)
 
 
-def test_one_poll_reads_a_bounded_batch():
+def test_one_poll_reads_a_bounded_batch(monkeypatch):
     """The audit's flood: 65 KB datagrams of HEARTBEATs kept one poll(0.0) busy 8.56 s of CPU."""
+    import swarmctl.knowledge.exchange as exchange
+
+    monkeypatch.setattr(exchange, "POLL_BYTES", 8 * DATAGRAM_PARSE)  # a socket buffer's worth of the flood
     mav = mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
     hb = bytes(mavlink2.MAVLink_heartbeat_message(0, 0, 0, 0, 0, 0).pack(mav))
     big = hb * (65000 // len(hb))
@@ -194,15 +208,30 @@ def test_one_poll_reads_a_bounded_batch():
         with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
             for _ in range(12):
                 s.sendto(big, ex.address)
-            for _ in range(3 * READ_BATCH):
+            for _ in range(192):
                 s.sendto(hb, ex.address)
         n = ex.poll(0.5)
-        assert n == POLL_BYTES // DATAGRAM_PARSE  # the rest waits for the next poll
-        assert ex.codec.ignored["HEARTBEAT"] <= POLL_BYTES // len(hb) + 1
+        assert n == 8  # the rest waits for the next poll
+        assert ex.codec.ignored["HEARTBEAT"] <= 8 * DATAGRAM_PARSE // len(hb) + 1
         assert ex.rejections()["datagram"] == n
         while ex.poll(0.2):
             pass
-        assert ex.stats["received_packets"] == 12 + 3 * READ_BATCH  # every datagram read in the end
+        assert ex.stats["received_packets"] == 12 + 192  # every datagram read in the end
+    finally:
+        ex.close()
+
+
+def test_one_poll_keeps_up_with_a_big_swarms_round():
+    """An onboard agent polls once a round: 40 agents send about 80 datagrams a round, all read at once."""
+    mav = mavlink2.MAVLink(None, srcSystem=9, srcComponent=1)
+    hb = bytes(mavlink2.MAVLink_heartbeat_message(0, 0, 0, 0, 0, 0).pack(mav))
+    ex = KnowledgeExchange(Knowledge(10, 10, 0), 7, ("127.0.0.1", 9), members=MEMBERS, fov=2.0)
+    try:
+        with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+            for _ in range(400):
+                s.sendto(hb * 5, ex.address)
+        assert ex.poll(0.5) == 400
+        assert 400 * DATAGRAM_MIN <= POLL_BYTES
     finally:
         ex.close()
 

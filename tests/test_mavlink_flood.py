@@ -356,3 +356,23 @@ def test_link_events_are_kept_only_for_the_vehicles_the_link_expects():
     assert events == [(1, "seen"), (1, "lost"), (1, "back"), (50, "seen")]
     assert calls == events
     assert maxlen == EVENTS_KEEP
+
+
+def test_a_link_that_fails_to_open_keeps_neither_its_link_id_nor_its_socket(monkeypatch):
+    import swarmctl.mavlink.inbox as inbox
+    import swarmctl.mavlink.network as network
+
+    def broken(self, link, sock):
+        raise OSError("no selector today")
+
+    monkeypatch.setattr(inbox.Inbox, "read", broken)
+
+    async def scenario():
+        link = MavlinkLink("udpin:127.0.0.1:0", signing_key=KEY)
+        with pytest.raises(OSError):
+            await link.open()
+        return link
+
+    link = run(scenario())
+    assert link not in network._link_ids.values()
+    assert link._transport.sock.fileno() == -1  # closed

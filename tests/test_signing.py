@@ -123,3 +123,23 @@ def test_a_forged_frame_neither_disables_a_signed_link_nor_fires_the_mocks_gcs_f
     assert peer_kept and armed and not failsafe
     assert bad >= 1  # the forged frame was seen, and refused
     assert our_threads() == []
+
+
+def test_a_vehicle_whose_clock_runs_ahead_does_not_cost_the_other_links_their_new_vehicles():
+    """Links sharing one signing clock: vehicle 1, two minutes fast, pushes the clock ahead; vehicle 2's
+    first heartbeat on another link, at the wall clock's time, is a new stream and is still taken."""
+    from swarmctl.signing import SigningClock, now_timestamp
+
+    clock = SigningClock()
+    link_a, link_b = mavlink2.MAVLink(None), mavlink2.MAVLink(None)
+    for link_id, mav in enumerate((link_a, link_b)):
+        mav.robust_parsing = True
+        setup_signing(mav, KEY, link_id=link_id, clock=clock)
+    fast = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+    setup_signing(fast, KEY)
+    fast.signing.timestamp = now_timestamp() + 120 * 100_000
+    assert kinds(link_a, signed_heartbeat(fast)) == ["HEARTBEAT"]
+    assert clock.now() > now_timestamp() + 100 * 100_000  # pushed ahead
+    honest = mavlink2.MAVLink(None, srcSystem=2, srcComponent=1)
+    setup_signing(honest, KEY)
+    assert kinds(link_b, signed_heartbeat(honest)) == ["HEARTBEAT"]

@@ -67,9 +67,12 @@ NEVER = np.iinfo(np.int64).max
 RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 # what one poll reads at most (the rest waits in the socket for the next poll, as the vehicle links'
 # drains do: swarmctl.mavlink.inbox), so a flood cannot hold up the caller's loop
-READ_BATCH = 64  # datagrams
+# What one poll reads: an onboard agent polls once a round and must keep up with a big swarm (40 agents
+# send about 80 datagrams a round), so the bound is in bytes, each datagram counted as at least
+# DATAGRAM_MIN (a flood of empty ones costs its recvfrom calls): at most 1,024 datagrams a poll.
 DATAGRAM_PARSE = 8192  # bytes parsed of one datagram (a knowledge frame is at most 160); the rest dropped
-POLL_BYTES = 65536  # bytes parsed in all
+DATAGRAM_MIN = 256  # bytes a datagram counts for at least
+POLL_BYTES = 262144  # bytes parsed in all
 
 
 class KnowledgeExchange:
@@ -266,15 +269,15 @@ class KnowledgeExchange:
 
     def poll(self, timeout: float = 0.0) -> int:
         """Handle the datagrams (UDP) or deliveries (bus) waiting, waiting on UDP up to `timeout` s for the
-        first. Returns how many. On UDP at most READ_BATCH datagrams and POLL_BYTES parsed (DATAGRAM_PARSE
-        of each: the rest of a longer datagram is dropped, counted as `datagram`); the rest waits for the
-        next poll."""
+        first. Returns how many. On UDP at most POLL_BYTES parsed (DATAGRAM_PARSE of each: the rest of a
+        longer datagram is dropped, counted as `datagram`; each counted as at least DATAGRAM_MIN); the rest
+        waits for the next poll."""
         if self.bus is not None:
             return self._poll_bus()
         handled = 0
         parsed = 0
         wait = timeout
-        while handled < READ_BATCH and parsed < POLL_BYTES:
+        while parsed < POLL_BYTES:
             if wait > 0:
                 ready, _, _ = select.select([self.sock], [], [], wait)
                 if not ready:
@@ -294,7 +297,7 @@ class KnowledgeExchange:
                     "datagram", f"{len(data)} bytes: the {len(data) - DATAGRAM_PARSE} past {DATAGRAM_PARSE}"
                 )
                 data = data[:DATAGRAM_PARSE]
-            parsed += len(data)
+            parsed += max(len(data), DATAGRAM_MIN)
             for message, sysid, size in self.codec.parse_frames(data):
                 if message.sender == self.vehicle_id:
                     self.stats["own_echo"] += 1

@@ -19,10 +19,12 @@ changes), then the payload's validation (swarmctl.knowledge.codec), then `admit`
                one that fell behind the credit is believed again as it comes back). Older steps are
                not refused here (a vehicle repeats its finds with the step it made them) but checked
                against the sender's track (speed)
-    speed      the position it reports is reachable from the sender's accepted positions (its track):
-               from the nearest accepted step before and the nearest after, at most one cell per step
-               (Manhattan: vehicles move N/E/S/W) plus SPEED_SLACK cells (a vehicle set down elsewhere
-               after a link loss is believed again once the steps since allow the jump)
+    speed      the position it reports is reachable from the sender's newest accepted one (by step): at
+               most one cell per step (Manhattan: vehicles move N/E/S/W) plus SPEED_SLACK cells, by the
+               steps between them, either way (a vehicle set down elsewhere after a link loss is believed
+               again once the steps since allow the jump; an agent restarted counts from step 0 again,
+               from where its vehicle was last heard, and is believed at once). An old step is allowed a
+               jump as large as its age: what `footprint` bounds is the cells and targets it can bring
     footprint  a DETECTION's targets lie inside the sender's sensor footprint round the position it
                reports (the disc of radius fov cells, plus FOOTPRINT_SLACK): a vehicle vouches only for
                targets it saw itself, and repeats them with the step and cell it saw them from. A
@@ -91,11 +93,6 @@ class _Track:
             del self.cells[1:half:2]
         return True
 
-    def around(self, step: int) -> list[int]:
-        """Indices of the nearest entries at or before `step` and after it."""
-        i = bisect.bisect_right(self.steps, step)
-        return [j for j in (i - 1, i) if 0 <= j < len(self.steps)]
-
     def reach(self, radius: float, prehistory: bool) -> tuple[np.ndarray, np.ndarray]:
         """(E, 2) cells and (E,) radii: where what the vehicle sensed can lie (see the module docstring);
         with `prehistory` the first entry also reaches wherever the vehicle can have been since step 0."""
@@ -163,6 +160,9 @@ class KnowledgeTrust:
                 # behind catches up at the rate credit comes back, so it is believed again, never faster
                 credit = self._credit(clock)
                 self._clock[message.sender] = (clock[0] + int(credit), credit % 1.0, self.now, self._time())
+            elif reason == "step":  # first heard far ahead (an agent started very late): from FIRST_AHEAD on,
+                # as for a sender heard, so the gap closes at the rate credit comes back
+                self._clock[message.sender] = (self.now + FIRST_AHEAD, 0.0, self.now, self._time())
             return False
         sender, step = message.sender, message.step
         clock = self._clock.get(sender)
@@ -194,11 +194,12 @@ class KnowledgeTrust:
             return "step"
         cell = message.cell
         track = self._track.get(sender)
-        if cell is not None and track is not None:
-            for j in track.around(step):
-                x, y = track.cells[j]
-                if abs(cell[0] - x) + abs(cell[1] - y) > abs(step - track.steps[j]) + SPEED_SLACK:
-                    return "speed"
+        if cell is not None and track is not None and track.steps:
+            # from the newest accepted position, by the steps between (either way: an agent restarted
+            # counts its steps from 0 again, from where its vehicle was last heard)
+            x, y = track.cells[-1]
+            if abs(cell[0] - x) + abs(cell[1] - y) > abs(step - track.steps[-1]) + SPEED_SLACK:
+                return "speed"
         if self.fov is None:
             return None
         radius = self.fov + FOOTPRINT_SLACK + 1e-9

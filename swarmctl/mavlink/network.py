@@ -32,6 +32,7 @@ with `wait_heartbeat`, `peer`, a command), at most EVENTS_KEEP of them.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import logging
 import socket
 import threading
@@ -68,6 +69,7 @@ EVENTS_KEEP = 1000  # link events kept in MavlinkLink.events (the oldest go)
 # Signing link ids of the open links of this process: each signs as a stream of its own.
 _link_ids: dict[int, object] = {}
 _link_ids_lock = threading.Lock()
+_shared_ids = itertools.count()
 
 
 def _take_link_id(owner: object, wanted: int | None = None) -> int:
@@ -82,7 +84,7 @@ def _take_link_id(owner: object, wanted: int | None = None) -> int:
             if link_id not in _link_ids:
                 _link_ids[link_id] = owner
                 return link_id
-    link_id = id(owner) % 256
+    link_id = next(_shared_ids) % 256  # in turn (id() of objects falls on a few values only)
     log.warning("more than 256 signing links open in this process: link id %d is shared", link_id)
     return link_id
 
@@ -209,15 +211,24 @@ class MavlinkLink:
         self._transport = open_transport(self.endpoint)
         self.mav = MAV.MAVLink(_Writer(self._transport), srcSystem=self.system_id, srcComponent=self.component_id)
         self.mav.robust_parsing = True
-        if self.signing_key is not None:
-            unsigned = (lambda _mav, _mid: True) if self.accept_unsigned else _UNSIGNED_OK
-            link_id = self._own_link_id = _take_link_id(self, self.link_id)
-            setup_signing(self.mav, self.signing_key, link_id=link_id, accept_unsigned=unsigned, clock=PROCESS_CLOCK)
-        if isinstance(self._transport, UdpTransport) and self._inbox.read(self, self._transport.sock):
-            self._reading = self._transport.sock
-        else:
-            self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
-            self._thread.start()
+        try:
+            if self.signing_key is not None:
+                unsigned = (lambda _mav, _mid: True) if self.accept_unsigned else _UNSIGNED_OK
+                link_id = self._own_link_id = _take_link_id(self, self.link_id)
+                setup_signing(
+                    self.mav, self.signing_key, link_id=link_id, accept_unsigned=unsigned, clock=PROCESS_CLOCK
+                )
+            if isinstance(self._transport, UdpTransport) and self._inbox.read(self, self._transport.sock):
+                self._reading = self._transport.sock
+            else:
+                self._thread = threading.Thread(target=self._reader, name=f"mavlink-rx {self.endpoint}", daemon=True)
+                self._thread.start()
+        except BaseException:  # nothing of a link that did not open is kept: its link id, its socket
+            if self._own_link_id is not None:
+                _free_link_id(self._own_link_id, self)
+                self._own_link_id = None
+            self._transport.close()
+            raise
         self._tasks = [asyncio.create_task(self._heartbeat_loop())]
         self._inbox.watch(self)  # link loss: the loop's watchdog (_check_heartbeats)
         return self

@@ -99,6 +99,8 @@ async def start(c: Controller, a: Agent) -> None:
     except (TimeoutError, MavlinkError) as exc:
         a.error = str(exc)
         c.enter(a, State.FAILED, error=str(exc))
+    except InputError:
+        raise  # bad input: the mission stops with it (run() raises it, one line, exit 2)
     except Exception as exc:  # a driver's bug, or a reply it did not expect: this vehicle fails, not the mission
         a.error = f"unexpected {type(exc).__name__} while starting: {exc}"
         log.error("%s: %s", a.name, a.error)
