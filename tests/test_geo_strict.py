@@ -387,3 +387,11 @@ def test_a_box_plans_iff_it_is_a_cell_a_side_and_then_it_has_a_free_cell(w, h, c
     lat, lon = grid.cells_to_latlon(xs, ys)
     e, n = PROJ.to_metres(lon, lat)
     assert np.all((e >= -1e-6) & (e <= w + 1e-6) & (n >= -1e-6) & (n <= h + 1e-6))
+
+
+def test_a_dollar_in_an_area_file_name_is_drawn_as_written(tmp_path, capsys):
+    path = area_of(tmp_path, shapely.box(0, 0, 100, 100))
+    odd = path.rename(tmp_path / "park $\\undefinedcmd{x}$.geojson")  # mathtext matplotlib cannot parse
+    rc, err = cli(capsys, odd, "--out", tmp_path / "out")
+    assert rc == 0, err
+    assert (tmp_path / "out" / "preview.png").stat().st_size > 0

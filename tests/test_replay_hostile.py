@@ -11,6 +11,7 @@ import subprocess
 import sys
 import tracemalloc
 import zlib
+from html import escape as html_escape
 from pathlib import Path
 
 import numpy as np
@@ -291,3 +292,31 @@ def test_a_grid_of_another_place_is_said_to_hold_none_of_the_positions(tmp_path)
     fitted = tmp_path / "fitted"
     assert main(["replay", str(COPTER), "--out", str(fitted), "--quiet"]) == 0
     assert "none of its positions" not in (fitted / "summary.txt").read_text()
+
+
+@pytest.mark.parametrize("text", ["</script><script>alert(1)</script>", "<!--<script>", "__DATA__ & __TITLE__"])
+def test_recorded_text_cannot_end_or_change_the_page_data(demo, tmp_path, text):
+    from swarmctl.replay.page import write_page
+
+    replay = load(demo)
+    replay.name = f"run {text}"
+    replay.vehicles[0].name = text
+    html = write_page(replay, tmp_path / "index.html").read_text()
+    head, rest = html.split('<script type="application/json" id="replay-data">', 1)
+    block = rest.split("</script>", 1)[0]
+    assert "<" not in block  # nothing in the data can start a tag, a comment or an end tag
+    data = json.loads(block)
+    assert data["name"] == f"run {text}" and data["vehicles"][0]["name"] == text
+    title = head.split("<title>", 1)[1].split("</title>", 1)[0]
+    assert title == html_escape(f"run {text}: replay")  # the name as text; the data never lands in it
+
+
+def test_a_dollar_in_recorded_names_is_drawn_as_written(demo, tmp_path, capsys):
+    rec = _copy(demo, tmp_path)
+    odd = json.dumps("$\\undefinedcmd{x}$")  # as matplotlib's mathtext, a formula it cannot parse
+    for path in [*rec.glob("*.jsonl"), rec / "summary.json"]:  # the mission's name and the vehicle's
+        path.write_text(path.read_text().replace('"small"', odd).replace('"uav1"', odd))
+    assert load(rec).name == json.loads(odd) and load(rec).vehicles[0].name == json.loads(odd)
+    out = tmp_path / "out"
+    assert main(["replay", str(rec), "--out", str(out), "--quiet", "--to-step", "3"]) == 0, capsys.readouterr().err
+    assert list(out.glob("panels-step-*.png"))

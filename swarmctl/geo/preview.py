@@ -4,20 +4,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import shapely
+from matplotlib.colors import ListedColormap
+from matplotlib.patches import PathPatch, Rectangle
+from matplotlib.path import Path as MplPath
+from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import shapely  # noqa: E402
-from matplotlib.colors import ListedColormap  # noqa: E402
-from matplotlib.patches import PathPatch, Rectangle  # noqa: E402
-from matplotlib.path import Path as MplPath  # noqa: E402
-from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar  # noqa: E402
+from swarmctl.figures import pyplot
+from swarmctl.geo.areas import Area
+from swarmctl.geo.buildings import BuildingRule, BuildingSet
+from swarmctl.geo.grid import GeoGrid
 
-from swarmctl.geo.areas import Area  # noqa: E402
-from swarmctl.geo.buildings import BuildingRule, BuildingSet  # noqa: E402
-from swarmctl.geo.grid import GeoGrid  # noqa: E402
+plt = pyplot()
 
 COLOURS = {"blocking": "#c0392b", "low": "#2e86c1", "unknown": "#e67e22", "nofly": "#8e44ad"}
 

@@ -221,11 +221,9 @@ def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out:
     """mission.png: the grid, blocked cells, each vehicle's path, the targets found (and hidden)."""
     import json
 
-    import matplotlib
+    from swarmctl.figures import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines() if line]
     paths: dict[str, list] = {}
     for e in events:

@@ -14,7 +14,9 @@ https://tile.openstreetmap.org/{z}/{x}/{y}.png): then the browser fetches those 
 from __future__ import annotations
 
 import base64
+import html
 import json
+import re
 import time
 from pathlib import Path
 
@@ -123,7 +125,10 @@ def page_data(replay: Replay, basemap: str | None = None, attribution: str = "")
 def write_page(replay: Replay, path: Path, basemap: str | None = None, attribution: str = "") -> Path:
     """Write the page; `basemap` is a tile URL template with {z}, {x} and {y}, or None (offline)."""
     data = json.dumps(page_data(replay, basemap, attribution), separators=(",", ":"), allow_nan=False)
-    data = data.replace("</", "<\\/")  # the JSON cannot end the script element it sits in
-    title = replay.name.replace("&", "&amp;").replace("<", "&lt;")
-    path.write_text(PAGE.replace("__TITLE__", f"{title}: replay").replace("__DATA__", data), encoding="utf-8")
+    # "<" only occurs inside JSON strings, where \u003c means the same: so no recorded text ("</script>",
+    # "<!--") can end or change the script element the data sits in.
+    data = data.replace("<", "\\u003c")
+    fill = {"__TITLE__": html.escape(f"{replay.name}: replay"), "__DATA__": data}
+    # One pass: text put in for one marker is never searched for the other.
+    path.write_text(re.sub("__TITLE__|__DATA__", lambda m: fill[m.group()], PAGE), encoding="utf-8")
     return path

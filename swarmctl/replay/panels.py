@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from swarmctl.figures import pyplot
 from swarmctl.replay.recording import Replay
 
 UNEXPLORED = "#a6a6a6"
@@ -29,12 +30,7 @@ OBSTACLE = "#404040"
 
 
 def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def known_phi(replay: Replay) -> np.ndarray | None:
