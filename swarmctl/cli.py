@@ -6,7 +6,7 @@ import sys
 
 import click
 
-from swarmctl.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, InputError
+from swarmctl.errors import EXIT_BAD_INPUT, EXIT_INTERRUPTED, InputError, printable
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100})
@@ -37,8 +37,8 @@ for command in (
 
 
 def one_line(message: str) -> str:
-    """A message as the single line the CLI prints."""
-    return " ".join(message.split())
+    """A message as the single line the CLI prints (what is not printable in it escaped)."""
+    return printable(" ".join(message.split()))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,3 +17,12 @@ class InputError(Exception):
 
 class ScenarioError(InputError):
     """A scenario that cannot be generated with the requested parameters."""
+
+
+def printable(text: str) -> str:
+    """Text from outside (a vehicle's STATUSTEXT, a name read from a file), safe to print on a
+    terminal: each character that is not printable (an escape that would move the cursor or retitle the
+    window, a bidirectional override that would reorder what is shown) written as its Python escape."""
+    if text.isprintable():
+        return text
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in text)

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
 
 from swarmctl.cli import main
 from swarmctl.policy.checkpoint import save_checkpoint, weights_sha256
@@ -701,3 +703,20 @@ def test_bad_input_is_one_line_naming_the_field_and_exit_2(name, template, needl
     assert code == 2, err
     assert len(lines) == 1, err
     assert lines[0].startswith("swarmctl: error: ") and needle in lines[0], lines[0]
+
+
+@given(st.text())
+def test_printable_text_is_printable_and_printable_text_is_kept(text):
+    from swarmctl.errors import printable
+
+    shown = printable(text)
+    assert shown.isprintable()
+    assert (shown == text) == text.isprintable()
+
+
+def test_an_error_naming_a_file_prints_its_escapes_as_text(tmp_path, capsys):
+    bad = tmp_path / "area\x1b[2J\x1b]0;owned\x07.geojson"  # a name that would clear the terminal
+    bad.write_text("{not json")
+    assert main(["plan", str(bad), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "\x1b" not in err and "area\\x1b[2J\\x1b]0;owned\\x07.geojson" in err, err

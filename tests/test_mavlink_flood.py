@@ -376,3 +376,25 @@ def test_a_link_that_fails_to_open_keeps_neither_its_link_id_nor_its_socket(monk
     link = run(scenario())
     assert link not in network._link_ids.values()
     assert link._transport.sock.fileno() == -1  # closed
+
+
+def test_a_statustext_of_terminal_escapes_is_kept_escaped():
+    """A STATUSTEXT that would clear the operator's terminal and retitle its window (what the live view
+    and the log print, and preflight events record) is kept with those characters written as escapes."""
+    hostile = b"\x1b]0;owned\x07\x1b[2JPreArm: ok"  # a window title (OSC 0), then clear the screen
+
+    async def scenario():
+        link = await MavlinkLink("udpin:127.0.0.1:0", heartbeat_period=60).open()
+        link.peer(1)
+        mav = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+                frame = bytes(mav.statustext_encode(mavlink2.MAV_SEVERITY_WARNING, hostile).pack(mav))
+                s.sendto(heartbeat(1) + frame, ("127.0.0.1", link.local_port))
+                await until(lambda: link.peers[1].statustexts)
+            return link.peers[1].texts_since(0)
+        finally:
+            await link.close()
+
+    text = run(scenario())
+    assert text == "\\x1b]0;owned\\x07\\x1b[2JPreArm: ok" and text.isprintable()

@@ -44,6 +44,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from swarmctl.errors import printable
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES, Endpoint, parse_connection
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, WaitTimeout
 from swarmctl.mavlink.inbox import Inbox, call_batch_listeners, inbox_for
@@ -378,7 +379,7 @@ class MavlinkLink:
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
-                    peer.statustexts.append((now, msg.severity, msg.text))
+                    peer.statustexts.append((now, msg.severity, printable(msg.text)))
             cbs = route.get(mtype)
             if cbs is None:
                 cbs = self._routes(mtype)

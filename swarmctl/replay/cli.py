@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from swarmctl.bounds import real, require_memory, whole, writable_folder
-from swarmctl.errors import InputError
+from swarmctl.errors import InputError, printable
 
 MAX_PANELS = 100  # pictures one --steps may ask for
 MIN_FPS, MAX_FPS = 0.1, 60.0  # --fps: a frame every 10 s at the slowest (ffmpeg refuses rates near 0)
@@ -210,7 +210,7 @@ def replay_command(
     written.append(text)
     if not quiet:
         for line in lines:
-            click.echo(line)
+            click.echo(printable(line))  # names and notes come from the recording
         click.echo(f"wrote {len(written)} files to {folder}: {', '.join(p.name for p in written)}")
 
 
@@ -234,7 +234,7 @@ def _verify(recording: Path, folder: Path, model: Path | None, min_probability: 
     (folder / "verify.json").write_text(json.dumps(report.as_dict(), indent=1) + "\n", encoding="utf-8")
     if not quiet:
         for line in report.lines():
-            click.echo(line)
+            click.echo(printable(line))
     if report.nothing_checked:  # unreadable input: no decision could be decided again
         why = ", ".join(f"{n}: {w}" for w, n in report.unchecked.most_common(1)) or "no inputs line was read"
         raise InputError(
