@@ -320,3 +320,17 @@ def test_a_dollar_in_recorded_names_is_drawn_as_written(demo, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["replay", str(rec), "--out", str(out), "--quiet", "--to-step", "3"]) == 0, capsys.readouterr().err
     assert list(out.glob("panels-step-*.png"))
+
+
+def test_control_characters_in_recorded_names_leave_the_kml_well_formed(demo, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from swarmctl.replay.tracks import write_tracks
+
+    replay = load(demo)
+    replay.name = "run\x00\x1b[2J"
+    replay.vehicles[0].name = "uav\x01"
+    kmls = {p.name: p for p in write_tracks(replay, tmp_path) if p.suffix == ".kml"}
+    names = {f: [e.text for e in ET.parse(p).iter() if e.tag.endswith("name")] for f, p in kmls.items()}
+    assert "run\\x00\\x1b[2J: tracks" in names["tracks.kml"] and "uav\\x01" in names["tracks.kml"]
+    assert "run\\x00\\x1b[2J: targets found" in names["targets.kml"]  # XML 1.0 refuses raw controls

@@ -13,7 +13,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK
+from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, printable
 from swarmctl.mission import sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
@@ -205,7 +205,7 @@ def write_targets_kml(path: Path, summary: dict) -> Path:
     ns = "http://www.opengis.net/kml/2.2"
     kml = ET.Element("kml", xmlns=ns)
     doc = ET.SubElement(kml, "Document")
-    ET.SubElement(doc, "name").text = f"{summary['mission']}: targets found"
+    ET.SubElement(doc, "name").text = printable(f"{summary['mission']}: targets found")  # a replayed name too
     for t in summary["targets_found"]:
         mark = ET.SubElement(doc, "Placemark")
         x, y = t["cell"]

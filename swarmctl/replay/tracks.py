@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarmctl.errors import printable
 from swarmctl.mission.service import write_targets_geojson, write_targets_kml
 from swarmctl.replay.recording import Replay, Vehicle
 
@@ -101,7 +102,7 @@ def _write_kml(replay: Replay, path: Path, targets_kml: Path) -> Path:
     k = f"{{{KML}}}"
     kml = ET.Element(f"{k}kml")
     doc = ET.SubElement(kml, f"{k}Document")
-    ET.SubElement(doc, f"{k}name").text = f"{replay.name}: tracks"
+    ET.SubElement(doc, f"{k}name").text = printable(f"{replay.name}: tracks")  # XML holds no control characters
     for v in replay.vehicles:
         style = ET.SubElement(doc, f"{k}Style", id=f"track-{v.index}")
         line = ET.SubElement(style, f"{k}LineStyle")
@@ -113,7 +114,7 @@ def _write_kml(replay: Replay, path: Path, targets_kml: Path) -> Path:
             continue
         coords = " ".join(f"{a:.7f},{b:.7f},{c:.2f}" for a, b, c in zip(lon, lat, alt))
         mark = ET.SubElement(doc, f"{k}Placemark")
-        ET.SubElement(mark, f"{k}name").text = v.name
+        ET.SubElement(mark, f"{k}name").text = printable(v.name)
         ET.SubElement(mark, f"{k}styleUrl").text = f"#track-{v.index}"
         span = ET.SubElement(mark, f"{k}TimeSpan")
         ET.SubElement(span, f"{k}begin").text = _iso(t[0])
@@ -122,7 +123,7 @@ def _write_kml(replay: Replay, path: Path, targets_kml: Path) -> Path:
         ET.SubElement(ls, f"{k}altitudeMode").text = "relativeToGround"
         ET.SubElement(ls, f"{k}coordinates").text = coords
         timed = ET.SubElement(doc, f"{k}Placemark")
-        ET.SubElement(timed, f"{k}name").text = f"{v.name} (timed)"
+        ET.SubElement(timed, f"{k}name").text = printable(f"{v.name} (timed)")
         ET.SubElement(timed, f"{k}styleUrl").text = f"#track-{v.index}"
         track = ET.SubElement(timed, f"{{{GX}}}Track")
         ET.SubElement(track, f"{k}altitudeMode").text = "relativeToGround"
