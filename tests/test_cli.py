@@ -144,3 +144,31 @@ def test_eval_plays_episodes_on_a_real_grid(tmp_path):
     assert rows[1]["success_rate"] == 1.0  # every target of these episodes lies well within 60 steps
     code, _, err = run("eval", "--grid", str(tmp_path / "none.npz"), "--policy", "frontier")
     assert code == 2 and "none.npz" in err and "Traceback" not in err
+
+
+def test_every_numeric_option_of_every_command_is_bounded_and_refuses_nan():
+    """Options, not tests of each: a new float option made with click's own type (which lets NaN
+    through) or an unbounded integer fails here until it uses swarmctl.bounds.real / whole."""
+    import click
+
+    from swarmctl.bounds import FiniteRange
+    from swarmctl.cli import cli as root
+
+    def commands(group, path):
+        for name, command in group.commands.items():
+            if isinstance(command, click.Group):
+                yield from commands(command, [*path, name])
+            else:
+                yield [*path, name], command
+
+    loose, bounded = [], 0
+    for path, command in commands(root, []):
+        for param in command.params:
+            kind = param.type
+            bounded += isinstance(kind, FiniteRange)
+            if isinstance(kind, click.types.FloatParamType) and not isinstance(kind, FiniteRange):
+                loose.append(f"{' '.join(path)} {param.opts[0]}: a float that takes NaN")
+            elif isinstance(kind, click.types.IntParamType) and not isinstance(kind, click.IntRange):
+                loose.append(f"{' '.join(path)} {param.opts[0]}: an integer without bounds")
+    assert loose == []
+    assert len(list(commands(root, []))) >= 9 and bounded >= 20  # the walk reached the options
