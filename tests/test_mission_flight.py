@@ -321,3 +321,21 @@ def test_a_vehicle_launched_outside_the_fence_does_not_take_off(tmp_path):
     for a in controller.agents:
         assert a.state == "failed" and "is outside the fence (the search area's boundary)" in a.error
     assert all(not e["uploaded"] for e in events(tmp_path) if e["event"] == "fence")
+
+
+def test_the_last_progress_line_tells_the_search_as_it_ended_not_as_the_vehicles_land(tmp_path):
+    import io
+    import re
+
+    from swarmctl.mission.service import LiveView
+
+    view = io.StringIO()
+    with SimSwarm(small_grid(), uavs=2, seed=1, speedup=30.0) as swarm:
+        plan = swarm.plan("frontier", end_action="land", time_limit=120.0)
+        controller, outcome = fly(plan, tmp_path, view=LiveView(stream=view, live=False))
+    assert outcome == "complete" and [a.end_state for a in controller.agents] == ["landed"] * 2
+    last = [line for line in view.getvalue().splitlines() if line.startswith("step ")][-1]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    match = re.fullmatch(r"step (\d+)  targets found 2  hovering 2/2  ([\d.]+) s  -> complete", last)
+    assert match is not None, last  # both were hovering when it ended: not 0/2 once they had landed
+    assert abs(float(match[2]) - summary["search_time_s"]) <= 0.06 and int(match[1]) == summary["steps"]

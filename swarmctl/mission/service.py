@@ -82,8 +82,12 @@ class LiveView:
             return
         now = time.monotonic()
         found = len(set().union(*(a.knowledge.targets for a in c.agents))) if c.agents else 0
-        hovering = sum(a.state is State.HOVER or a.end_state == "hovering on target" for a in c.agents)
-        elapsed = now - c.search_started if c.search_started else 0.0
+        if c.ended is not None:  # as the search ended (as the summary says), not as the end actions go
+            hovering = len(c.on_targets)
+            elapsed = c.ended - c.search_started if c.search_started else 0.0
+        else:
+            hovering = sum(a.state is State.HOVER for a in c.agents)
+            elapsed = now - c.search_started if c.search_started else 0.0
         progress = f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  {elapsed:.1f} s" + (
             f"  -> {c.outcome}" if c.outcome else ""
         )
