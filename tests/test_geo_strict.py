@@ -395,3 +395,21 @@ def test_a_dollar_in_an_area_file_name_is_drawn_as_written(tmp_path, capsys):
     rc, err = cli(capsys, odd, "--out", tmp_path / "out")
     assert rc == 0, err
     assert (tmp_path / "out" / "preview.png").stat().st_size > 0
+
+
+def test_a_kml_placemark_name_is_quoted_short_and_printable_in_a_warning(tmp_path, capsys):
+    name = "evil\u202e" * 2000  # right-to-left overrides, 10,000 characters
+    ring = [(LON, LAT), (LON + 0.01, LAT + 0.01), (LON + 0.01, LAT), (LON, LAT + 0.01), (LON, LAT)]  # a bow tie
+    coords = " ".join(f"{x},{y}" for x, y in ring)
+    kml = tmp_path / "bowtie.kml"
+    kml.write_text(
+        '<kml xmlns="http://www.opengis.net/kml/2.2"><Placemark>'
+        f"<name>{name}</name><Polygon><outerBoundaryIs><LinearRing><coordinates>{coords}</coordinates>"
+        "</LinearRing></outerBoundaryIs></Polygon></Placemark></kml>",
+        encoding="utf-8",
+    )
+    rc, err = cli(capsys, kml, "--out", tmp_path / "out")
+    warning = [line for line in err.splitlines() if "invalid polygon" in line]
+    assert rc == 0 and len(warning) == 1, err
+    assert warning[0].isprintable() and "\u202e" not in warning[0] and len(warning[0]) < 600, warning[0]
+    assert "Placemark 0 (evil\\u202eevil" in warning[0]

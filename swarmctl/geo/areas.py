@@ -200,6 +200,15 @@ def _kml_ring(elem: ET.Element, path: Path, where: str):
     return lonlat_ring(points, path, where, fmt="KML")
 
 
+NAME_SHOWN = 60  # characters of a Placemark's name quoted in a message
+
+
+def _label(name: str) -> str:
+    """A Placemark's name as messages quote it: at most NAME_SHOWN characters."""
+    name = " ".join(name.split())
+    return (name[:NAME_SHOWN] + "...") if len(name) > NAME_SHOWN else (name or "unnamed")
+
+
 def read_kml(path: Path) -> Area:
     """Read an Area from a KML file (at most INPUT_MAX_BYTES): every <Polygon>, with outer and inner boundaries."""
     require_file(path)
@@ -213,7 +222,7 @@ def read_kml(path: Path) -> Area:
         name = next((e.text or "" for e in pm if _local(e.tag) == "name"), "")
         target = nofly if _NOFLY_NAME.match(name) else area
         for gi, poly in enumerate(e for e in pm.iter() if _local(e.tag) == "Polygon"):
-            where = f"Placemark {pi} ({name.strip() or 'unnamed'}) polygon {gi}"
+            where = f"Placemark {pi} ({_label(name)}) polygon {gi}"
             outer = [e for e in poly if _local(e.tag) == "outerBoundaryIs"]
             if not outer:
                 raise InputError(f"{path}: {where}: <Polygon> without <outerBoundaryIs>; fix the KML")

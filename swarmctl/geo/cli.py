@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from swarmctl.bounds import new_recording_folder, real, whole
-from swarmctl.errors import InputError
+from swarmctl.errors import InputError, printable
 from swarmctl.geo.defaults import (
     DEFAULT_ALTITUDE,
     DEFAULT_CELL,
@@ -21,7 +21,7 @@ from swarmctl.geo.defaults import (
 
 
 def _warn(message: str) -> None:
-    click.echo(f"swarmctl: warning: {message}", err=True)
+    click.echo(f"swarmctl: warning: {printable(message)}", err=True)  # it may quote a file's names
 
 
 def summary_lines(grid, report, with_buildings: bool) -> list[str]:
