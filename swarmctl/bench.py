@@ -1,4 +1,5 @@
-"""`swarmctl bench`: simulator throughput, decision times against the network's FLOP limit, and
+"""`swarmctl bench`: simulator throughput, decision times against the network's FLOP limit, the
+planners' decision times on the Chicago Loop grid (the coordinated planner against frontier), and
 training throughput against its FLOP ceiling, all measured in one run on this machine.
 
 Every time is the median of five rounds (each round at least `seconds` / 5), in CPU time of the
@@ -82,17 +83,21 @@ def decision_seconds(policy, batch_episodes: int, seconds: float) -> float:
         env.step(np.tile([[1, 2]], (batch_episodes, 1)))
     policy.reset(env.beliefs(), 0)
     policy.act(env.beliefs())  # warm-up
-    rounds = []
-    for _ in range(ROUNDS):
-        spent, calls = 0.0, 0
-        while calls == 0 or spent < seconds / ROUNDS:
-            beliefs = env.beliefs()
-            t0 = CLOCK()
-            policy.act(beliefs)
-            spent += CLOCK() - t0
-            calls += 1
-        rounds.append(spent / calls)
+    rounds = [act_seconds(policy, env, seconds / ROUNDS) for _ in range(ROUNDS)]
     return statistics.median(rounds) / (batch_episodes * env.uavs)
+
+
+def act_seconds(policy, env: SearchEnv, seconds: float) -> float:
+    """CPU seconds of one `policy.act` on the env's fresh beliefs (not timed: building them), over at
+    least `seconds` of calls."""
+    spent, calls = 0.0, 0
+    while calls == 0 or spent < seconds:
+        beliefs = env.beliefs()
+        t0 = CLOCK()
+        policy.act(beliefs)
+        spent += CLOCK() - t0
+        calls += 1
+    return spent / calls
 
 
 def decision_and_matmul(policy, seconds: float) -> tuple[float, float]:
@@ -105,6 +110,47 @@ def decision_and_matmul(policy, seconds: float) -> tuple[float, float]:
         rates.append(matmul_flops_per_s(seconds / ROUNDS))
         decisions.append(decision_seconds(policy, 1, seconds / ROUNDS))
     return statistics.median(rates), statistics.median(decisions)
+
+
+CHICAGO_GRID = Path(__file__).resolve().parents[1] / "missions" / "chicago-loop" / "grid.npz"
+PLANNER_SWARMS = (3, 12, 50)  # vehicles on the Chicago Loop grid
+
+
+def planner_blocked() -> np.ndarray:
+    """The Chicago Loop grid's blocked cells (50 x 50, 12 % blocked), or, without the repository's
+    missions/ (an installed package), a 50 x 50 map of 10 % rectangles like it."""
+    if CHICAGO_GRID.exists():
+        from swarmctl.geo.grid import GeoGrid
+
+        return GeoGrid.load(CHICAGO_GRID).blocked.copy()
+    env = SearchEnv(WorldConfig(map_size=50, obstacles=0.1), batch=1, observations=False)
+    env.reset(seed=0)
+    return env.obstacles[0].copy()
+
+
+def planner_decisions(specs: list[str], vehicles: int, seconds: float, blocked: np.ndarray) -> list[float]:
+    """Seconds per vehicle of one batch-1 decision of each planner spec, for `vehicles` vehicles a few
+    steps into a sparse search on `blocked`, measured in alternating rounds (the ratios between
+    them hold for one stretch of the machine's time)."""
+    from swarmctl.policy.registry import make_policy
+
+    w, h = blocked.shape
+    cfg = WorldConfig(scenario="sparse", map_size=max(w, h), uavs=vehicles, targets=vehicles, d_sparse=2.0)
+    env = SearchEnv(cfg, batch=1, observations=False)
+    env.reset(seed=0, blocked=blocked)
+    walk = make_policy("frontier:hover=no")
+    walk.reset(env.beliefs(), 0)
+    for _ in range(8):  # some of the map explored, the swarm spread out
+        env.step(walk.act(env.beliefs()))
+    policies = [make_policy(s) for s in specs]
+    for p in policies:
+        p.reset(env.beliefs(), 0)
+        p.act(env.beliefs())  # warm-up
+    times: list[list[float]] = [[] for _ in specs]
+    for _ in range(ROUNDS):
+        for p, out in zip(policies, times):
+            out.append(act_seconds(p, env, seconds / ROUNDS) / vehicles)
+    return [statistics.median(t) for t in times]
 
 
 def ddql_policy(tmp: Path, options: str = ""):
@@ -263,6 +309,12 @@ def run_bench(seconds: float = 2.0, threads: int = 1, train: bool = True) -> dic
     out["ddql_decision_over_flop_limit"] = out["ddql_decision_ms_batch1"] / out["qnet_flop_limit_ms_batch1"]
     out["la4_decision_ms_batch1"] = 1000.0 * decision_seconds(LookAhead(4), 1, seconds)
     out["la4_over_ddql_decision_time"] = out["la4_decision_ms_batch1"] / out["ddql_decision_ms_batch1"]
+    blocked = planner_blocked()
+    for vehicles in PLANNER_SWARMS:
+        coordinated, frontier = planner_decisions(["coordinated", "frontier"], vehicles, seconds, blocked)
+        out[f"coordinated_decision_ms_per_vehicle_chicago_u{vehicles}"] = 1000.0 * coordinated
+        out[f"frontier_decision_ms_per_vehicle_chicago_u{vehicles}"] = 1000.0 * frontier
+        out[f"coordinated_over_frontier_decision_u{vehicles}"] = coordinated / frontier
     for batch in (1, 256):
         out[f"env_vehicle_steps_per_s_batch{batch}"] = env_throughput(m20, batch, True, seconds)
         out[f"env_vehicle_steps_per_s_batch{batch}_no_obs"] = env_throughput(m20, batch, False, seconds)

@@ -112,9 +112,10 @@ WORLD_KEYS = (
 )
 
 
-def world_config(kwargs: dict) -> WorldConfig:
+def world_config(kwargs: dict, **fields) -> WorldConfig:
     """Pop the world's options from a command's kwargs and build the validated config (options that
-    only one setting of another reads are refused with the other, not ignored)."""
+    only one setting of another reads are refused with the other, not ignored); `fields` are more
+    WorldConfig fields a command sets itself (eval's finish line), validated together with them."""
     values = {k: kwargs.pop(k) for k in WORLD_KEYS}
     require(
         values["loss"] == 0 or values["channel"] == "fixed",
@@ -126,7 +127,7 @@ def world_config(kwargs: dict) -> WorldConfig:
         f"--clusters {values['clusters']}: only --scenario cluster reads it (the scenario is "
         f"{values['scenario']}); leave --clusters out",
     )
-    return WorldConfig(**values)
+    return WorldConfig(**values, **fields)
 
 
 def require(condition: bool, message: str) -> None:

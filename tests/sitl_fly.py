@@ -5,15 +5,16 @@ real sockets, and what the recording and the simulators say afterwards.
     with Flights([scenario, ...]) as flights:   # every scenario starts at once, each in a thread of its own
         result = flights.result("trio")         # waits for that one; raises SitlError if it could not fly
 
-A scenario holds the instance numbers it flies (ArduCopter -I 0-4 with --sysid
-N+1, PX4 -i 5-9 with system id N+1) while it runs; one that needs more than are free waits for them, so
-any set of scenarios runs, as many at once as there are instance numbers. Every port follows from the instance
-numbers (SITL's own; a detector's socket 14650 + N), so scenarios never collide. Each scenario writes its
-mission file (the Chicago Loop grid, frontier, no [knowledge] section), starts tools/sitl_detector.py for
-each vehicle given a detector, and runs fly; `during(flight)` is what happens meanwhile (kill an instance,
-SIGTERM fly), each step on a condition read from the recording (no fixed sleeps). After fly has exited,
-each surviving vehicle's own simulator is asked where it is (a port fly did not use). Whatever happens,
-fly, the detectors and the instances are stopped before a result is handed out, and before Flights exits.
+A scenario holds the instance numbers it flies (ArduCopter -I 0-4 with --sysid N+1, PX4 -i 5-9 with
+system id N+1) while it runs; one that needs more than are free waits for them, so any set of scenarios
+runs, as many at once as there are instance numbers. Every port follows from the instance numbers (SITL's
+own; a detector's socket 14650 + N), so scenarios never collide. Each scenario writes its mission file
+(the Chicago Loop grid or the scenario's own, frontier, no [knowledge] section), starts
+tools/sitl_detector.py for each vehicle given a detector, and runs fly; `during(flight)` is what happens
+meanwhile (kill an instance, SIGTERM fly), each step on a condition read from the recording (no fixed
+sleeps). After fly has exited, each surviving vehicle's own simulator is asked where it is (a port fly
+did not use). Whatever happens, fly, the detectors and the instances are stopped before a result is
+handed out, and before Flights exits.
 """
 
 from __future__ import annotations
@@ -95,6 +96,8 @@ class Scenario:
     timing: dict[str, float] = field(default_factory=dict)  # more [timing] keys
     during: Callable[[Flight], None] | None = None  # None: let fly run to its end
     deadline: float = 480.0  # wall seconds for the whole flight, end actions included
+    grid: GeoGrid | None = None  # the grid flown (saved beside the mission file); None: the Chicago Loop's
+    mission: dict[str, str] = field(default_factory=dict)  # more [mission] keys, values as TOML text
 
     def needs(self, kind: str) -> int:
         return sum(c.kind == kind for c in self.crafts)
@@ -348,18 +351,19 @@ class FlightResult:
         return "\n".join(rows) + "\n--- fly's output ends:\n" + self.output[-2500:]
 
 
-def mission_text(scenario: Scenario, crafts: dict[str, Any]) -> str:
-    """The mission file: no [knowledge] section, frontier, the scenario's timing."""
+def mission_text(scenario: Scenario, crafts: dict[str, Any], grid_file: Path = GRID) -> str:
+    """The mission file: no [knowledge] section, frontier, the scenario's timing and [mission] keys."""
     timing = {"step_period": 1.0, "time_limit": scenario.time_limit, **scenario.timing}
     at_once = scenario.takeoff_at_once or len(scenario.crafts)
     lines = [
         "[mission]",
         f'name = "sitl-{scenario.name}"',
         f"id = {MISSION_ID}",
-        f'grid = "{GRID}"',
+        f'grid = "{grid_file}"',
         f"altitude = {ALTITUDE}",
         f'policy = "{policy_spec(scenario.policy)}"',
         f'end_action = "{scenario.end_action}"',
+        *(f"{k} = {v}" for k, v in scenario.mission.items()),
         "[timing]",
         *(f"{k} = {float(v)!r}" for k, v in timing.items()),
         "[flight]",
@@ -390,10 +394,12 @@ def homes(grid: GeoGrid, crafts: Sequence[Craft]) -> list[tuple[float, ...]]:
     return out
 
 
-def detector_process(scenario: Scenario, craft: Craft, index: int, sim: Any, folder: Path) -> SimProcess:
+def detector_process(
+    scenario: Scenario, craft: Craft, index: int, sim: Any, folder: Path, grid_file: Path = GRID
+) -> SimProcess:
     """tools/sitl_detector.py for an ArduCopter: its SERIAL1 in, the mission's detector socket out."""
     argv = [sys.executable, str(ROOT / "tools" / "sitl_detector.py"), "--telemetry", f"tcp:127.0.0.1:{sim.ports[1]}"]
-    argv += ["--sysid", str(sim.sysid), "--grid", str(GRID), "--mission-id", str(MISSION_ID)]
+    argv += ["--sysid", str(sim.sysid), "--grid", str(grid_file), "--mission-id", str(MISSION_ID)]
     argv += ["--altitude", str(ALTITUDE), "--vehicle", str(index)]
     argv += ["--send", f"udp:127.0.0.1:{DETECTOR_PORT + sim.instance}"]
     for x, y in scenario.targets:
@@ -438,7 +444,7 @@ def fly_scenario(scenario: Scenario, stopping: threading.Event, keep: Path | Non
     why = scenario.unavailable()
     if why is not None:
         raise Unavailable(why)
-    grid = GeoGrid.load(GRID)
+    grid = scenario.grid if scenario.grid is not None else GeoGrid.load(GRID)
     ac = [c for c in scenario.crafts if c.kind == ARDUCOPTER]
     px = [c for c in scenario.crafts if c.kind == PX4]
     with contextlib.ExitStack() as stack:
@@ -447,6 +453,7 @@ def fly_scenario(scenario: Scenario, stopping: threading.Event, keep: Path | Non
         else:
             folder = keep
             folder.mkdir(parents=True, exist_ok=True)
+        grid_file = GRID if scenario.grid is None else scenario.grid.save(folder / "grid.npz")
         numbers_ac, numbers_px4 = stack.enter_context(POOL.hold(len(ac), len(px), stopping))
         sims: dict[str, Any] = {}
         if ac:
@@ -467,13 +474,14 @@ def fly_scenario(scenario: Scenario, stopping: threading.Event, keep: Path | Non
             sims.update({c.name: s for c, s in zip(px, vehicles)})
         flight = Flight(scenario, folder, stopping)
         flight.instances = sims
-        flight.mission_file.write_text(mission_text(scenario, sims))
+        flight.mission_file.write_text(mission_text(scenario, sims, grid_file))
         procs = stack.enter_context(_stopped_first())
         for index, craft in enumerate(scenario.crafts):
             if craft.detector:
                 if craft.kind != ARDUCOPTER:
                     raise SitlError(f"{scenario.name}: the detector tool reads ArduCopter SERIAL1, not {craft.kind}")
-                flight.detectors.append(detector_process(scenario, craft, index, sims[craft.name], folder).start())
+                detector = detector_process(scenario, craft, index, sims[craft.name], folder, grid_file)
+                flight.detectors.append(detector.start())
                 procs.append(flight.detectors[-1])
         argv = [sys.executable, "-m", "swarmctl.cli", "fly", "--yes", "--no-live", "--out", str(flight.recording)]
         flight.fly = SimProcess("swarmctl fly", argv + [str(flight.mission_file)], folder / "fly").start()

@@ -65,8 +65,16 @@ def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path
         "env_m50_u10_vehicle_steps_per_s_batch64",
         "train_samples_per_s",
         "train_flop_ceiling_samples_per_s",
+        *(f"coordinated_decision_ms_per_vehicle_chicago_u{n}" for n in (3, 12, 50)),
+        *(f"frontier_decision_ms_per_vehicle_chicago_u{n}" for n in (3, 12, 50)),
     ):
         assert data[key] > 0, key
+    for n in (3, 12, 50):  # the planners' ratio is of the same run's figures
+        ratio = data[f"coordinated_over_frontier_decision_u{n}"]
+        assert ratio == pytest.approx(
+            data[f"coordinated_decision_ms_per_vehicle_chicago_u{n}"]
+            / data[f"frontier_decision_ms_per_vehicle_chicago_u{n}"]
+        )
     # the limit is the network's 4.88 MFLOP at the matmul rate of this very run
     assert data["qnet_flop_limit_ms_batch1"] == pytest.approx(4.88448e6 / (data["matmul_gflop_per_s"] * 1e9) * 1e3)
     assert data["ddql_decision_over_flop_limit"] == pytest.approx(

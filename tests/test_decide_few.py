@@ -6,6 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from swarmctl.policy.base import _allowed_batched, allowed_moves
+from swarmctl.policy.hover import HOVER_RULES, NO, parks
 from swarmctl.world.beliefs import SMALL, Beliefs, ObservationSettings
 from swarmctl.world.observe import _build_batched, build_observations, observe
 
@@ -54,10 +55,11 @@ def test_the_few_deciders_observations_are_the_references_bit_for_bit(beliefs, r
 
 
 @settings(max_examples=300, deadline=None)
-@given(small_beliefs(), st.booleans(), st.booleans())
-def test_the_few_deciders_rules_are_the_references(beliefs, hover, mask):
-    fast = allowed_moves(beliefs, hover, mask)
-    assert fast.dtype == bool and np.array_equal(fast, _allowed_batched(beliefs, hover, mask))
+@given(small_beliefs(), st.sampled_from(HOVER_RULES), st.booleans())
+def test_the_few_deciders_rules_are_the_references(beliefs, rule, mask):
+    fast = allowed_moves(beliefs, rule, mask)
+    parked = None if rule == NO else parks(beliefs, rule)
+    assert fast.dtype == bool and np.array_equal(fast, _allowed_batched(beliefs, parked, mask))
     assert beliefs.any_taken == bool((beliefs.targets & (beliefs.others_count > 0)).any())
     assert beliefs.any_obstacle == bool(beliefs.obstacles.any())
 

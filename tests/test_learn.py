@@ -183,9 +183,9 @@ def test_training_is_reproducible_and_transfer_starts_from_init(tmp_path):
 def test_ddql_options_parse_in_any_order(tiny_model):
     out, _ = tiny_model
     paper = make_ddql_policy(f"ddql:{out}:taken=keep:tau=0.2:mask=no:hover=no")
-    assert (paper.path, paper.tau, paper.remove_taken, paper.hover, paper.mask) == (str(out), 0.2, False, False, False)
+    assert (paper.path, paper.tau, paper.remove_taken, paper.hover, paper.mask) == (str(out), 0.2, False, "no", False)
     ours = make_ddql_policy(f"ddql-greedy:{out}")
-    assert (ours.path, ours.tau, ours.remove_taken, ours.hover, ours.mask) == (str(out), None, True, True, True)
+    assert (ours.path, ours.tau, ours.remove_taken, ours.hover, ours.mask) == (str(out), None, True, "first", True)
 
 
 def test_the_best_held_out_checkpoint_is_kept_beside_the_last(tmp_path):

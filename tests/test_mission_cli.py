@@ -140,20 +140,12 @@ def test_sigterm_mid_mission_gives_every_vehicle_its_end_action_and_exits_130(tm
     assert json.loads(lines[-1])["event"] in ("state", "end_action")  # closed after the end actions
 
 
-def test_demo_flies_the_shipped_obstacle_model_and_falls_back_to_frontier_without_it(tmp_path, monkeypatch):
+def test_demo_flies_the_coordinated_planner_and_says_why():
     from swarmctl.mission import cli as mission_cli
 
-    monkeypatch.chdir(ROOT)
     policy, note = mission_cli.default_policy()
-    assert policy.spec == f"ddql:{ROOT / 'models' / 'obstacles-3uav.pt'}:straggler=frontier" and note is None
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(mission_cli, "ROOT", tmp_path)
-    policy, note = mission_cli.default_policy()
-    assert (policy.spec, note) == ("frontier", "models/obstacles-3uav.pt is not there")
-    (tmp_path / "models").mkdir()
-    (tmp_path / "models" / "obstacles-3uav.pt").write_bytes(b"not a checkpoint")
-    policy, note = mission_cli.default_policy()
-    assert policy.spec == "frontier" and "cannot be used" in note
+    assert policy.spec == "coordinated" and policy.hover == "defer"
+    assert "best measured policy" in note and "docs/RESULTS.md" in note
 
 
 BAD = [

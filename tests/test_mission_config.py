@@ -323,6 +323,18 @@ def _battery(b: dict) -> dict:
     return b
 
 
+def _finish(d: dict) -> dict:
+    """The finish line as the spec wants it: finish held (given or default) neither marks nor expects more
+    targets than vehicles."""
+    m = d["mission"]
+    if m.get("finish", "held") == "held":
+        if m.get("on_find") == "mark":
+            m["on_find"] = "hold"
+        if "expected_targets" in m:
+            m["expected_targets"] = min(m["expected_targets"], len(d["vehicles"]))
+    return d
+
+
 SPECS = st.fixed_dictionaries(
     {"mission": _mission(), "vehicles": _vehicles()},
     optional={
@@ -335,7 +347,7 @@ SPECS = st.fixed_dictionaries(
             st.fixed_dictionaries({}, optional={"channel": st.just("udpout:192.168.1.9:5000")}),
         ),
     },
-)
+).map(_finish)
 
 
 @pytest.fixture(scope="module")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tests.mission_support import small_grid
 from tests.sitl_fly import (
     ARDUCOPTER,
     MIXED,
@@ -62,6 +63,15 @@ SCENARIOS = {
         Scenario("trio", TRIO, time_limit=20.0),
         Scenario("trio-ddql", TRIO, time_limit=20.0, policy=DDQL),
         Scenario("detector", [Craft("alpha", ARDUCOPTER, (0, 0), detector=True)], time_limit=40.0, targets=((3, 3),)),
+        # a finish line of the mission file: a 6 x 6 grid (a 2 x 2 block in the middle) covered ends it
+        Scenario(
+            "covered",
+            [Craft("alpha", ARDUCOPTER, (0, 0)), Craft("bravo", ARDUCOPTER, (2, 0))],
+            time_limit=120.0,
+            end_action="land",
+            grid=small_grid(6, 6),
+            mission={"finish": '"covered"'},
+        ),
         # the kill scenarios end by SIGTERM; the time limit only bounds a search whose vehicles come up late
         Scenario("kill", TRIO, time_limit=300.0, during=kill_then_terminate("charlie", ["alpha", "bravo"])),
         Scenario("px4-pair", PX4_PAIR, time_limit=40.0),
@@ -170,6 +180,19 @@ def test_a_detector_fed_the_real_position_finds_the_target_and_the_vehicle_hover
     assert [tuple(t["cell"]) for t in r.summary["targets_found"]] == [(3, 3)], r.describe()
     assert r.vehicle("alpha")["sensor_reports"] > 0, r.describe()
     assert within(HOME_M, r.landings["alpha"]), r.describe()
+
+
+@pytest.mark.scenario("covered")
+def test_two_arducopters_end_a_covered_search_complete_once_every_reachable_cell_is_explored(flights):
+    r = flown(flights, "covered")
+    assert (r.rc, r.summary["outcome"]) == (0, "complete"), r.describe()
+    assert r.summary["finish"] == {"rule": "covered", "expected_targets": None, "on_find": "hold", "met": True}
+    assert r.summary["covered_fraction"] == 1.0, r.describe()
+    assert r.summary["search_time_s"] < r.scenario.time_limit, r.describe()  # the finish line ended it
+    assert r.end_actions() == {"alpha": "land", "bravo": "land"}, r.describe()
+    for n in ("alpha", "bravo"):
+        assert r.vehicle(n)["end_state"] == "landed", r.describe()
+        assert r.landings[n] is not None and not r.landings[n].armed, r.describe()
 
 
 @pytest.mark.scenario("kill")

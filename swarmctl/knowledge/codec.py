@@ -416,6 +416,15 @@ class KnowledgeCodec:
         self._tx.seq = (self._tx.seq + 1) % 256
         return buf
 
+    def statustext(self, severity: int, text: str) -> bytes:
+        """A MAVLink 2 STATUSTEXT frame (at most 50 ASCII characters: longer text is cut) from this
+        codec's system and component ids, in its sequence and signed as its TUNNELs are (the mission's
+        reports to a ground station: swarmctl.mission.finish)."""
+        data = text.encode("ascii", "replace")[:50]
+        buf = self._tx.statustext_encode(severity, data).pack(self._tx)
+        self._tx.seq = (self._tx.seq + 1) % 256
+        return buf
+
     def frames(self, message: Message, repair: bool = False) -> list[bytes]:
         return [self.frame(pt, p) for pt, p in self.encode(message, repair)]
 

@@ -3,6 +3,12 @@
 All policies of one call see identical episodes: episode i depends only on (seed, i), and each
 policy's own randomness is keyed by (seed, episode, step, vehicle) (swarmctl.policy.draws), so the
 chunk size never changes a result. Policies decide only for the episodes still running.
+
+Success, and so `success_rate`, `mean_steps` and `steps_cdf`, is under the world's finish line
+(`WorldConfig.finish`): `held` (the paper's, the default), `found` or `covered` (swarmctl.world.env).
+The oracle bound (`oracle_mean_steps`, `duration_ratio_to_oracle`, the `oracle` policy) exists for
+`held` only: the others give None, and the `oracle` policy is refused. `found` adds `found_steps` per
+episode and `mean_first_find_steps`; `covered` adds `covered_fraction` and `mean_covered_fraction`.
 """
 
 from __future__ import annotations
@@ -12,6 +18,7 @@ import time
 import numpy as np
 from tqdm import tqdm
 
+from swarmctl.errors import InputError
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.registry import make_policy
 from swarmctl.world.config import WorldConfig
@@ -32,7 +39,10 @@ def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) 
     (the vehicles without a target of their own: off any target, or sharing one with a
     lower-numbered vehicle), and `straggler_distance`: when exactly one vehicle is searching (the
     paper's straggler), its BFS steps over the free cells to the nearest target no vehicle is on
-    (None otherwise, or when none is reachable); `collisions`, the steps with a collision."""
+    (None otherwise, or when none is reachable); `collisions`, the steps with a collision. Under the
+    finish line `found`, `found_steps`: the step each target was first sensed, in increasing order, None
+    for each target never sensed; under `covered`, `covered_fraction`: the share of the reachable free
+    cells sensed by the end."""
     at = (env.pos[:, :, None, :] == env.targets[:, None, :, :]).all(-1)  # (B, U, K)
     on = np.where(at.any(-1), at.argmax(-1), -1)
     searching = ~env.hovering_now()
@@ -48,7 +58,9 @@ def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) 
         who = searching[lone].argmax(1)
         d = dist[np.arange(len(lone)), env.pos[lone, who, 0], env.pos[lone, who, 1]]
         distance[lone] = np.where(d >= UNREACHABLE, -1, d)
-    return [
+    finish = env.cfg.finish
+    covered = env.covered_fraction() if finish == "covered" else None
+    records = [
         {
             "episode": int(env.episodes[b]),
             "steps": int(durations[b]),
@@ -60,6 +72,22 @@ def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) 
         }
         for b in range(env.batch)
     ]
+    for b, record in enumerate(records):
+        if finish == "found":
+            steps = np.sort(env.found_step[b])
+            record["found_steps"] = [int(s) for s in steps[steps >= 0]] + [None] * int((steps < 0).sum())
+        elif finish == "covered":
+            record["covered_fraction"] = float(covered[b])
+    return records
+
+
+def check_finish(cfg: WorldConfig, policy) -> None:
+    """The oracle bound is a bound on the `held` finish line only: InputError for another."""
+    if isinstance(policy, OracleBound) and cfg.finish != "held":
+        raise InputError(
+            f"--policy oracle: the oracle bound is defined for --finish held only (not --finish {cfg.finish}); "
+            "leave --policy oracle out"
+        )
 
 
 def run_policy(
@@ -75,6 +103,8 @@ def run_policy(
     """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given); returns
     the per-policy result record."""
     policy = make_policy(spec)
+    check_finish(cfg, policy)
+    held = cfg.finish == "held"
     durations, successes, oracle, records = [], [], [], []
     collisions = 0
     act_seconds, decisions = 0.0, 0
@@ -82,8 +112,9 @@ def run_policy(
     for start, n in _chunks(episodes, chunk):
         env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=False)  # policies observe for themselves
         env.reset(seed, range(start, start + n), blocked)
-        bound = OracleBound().durations(env)
-        oracle.append(np.minimum(bound, steps))
+        if held:
+            bound = OracleBound().durations(env)
+            oracle.append(np.minimum(bound, steps))
         if isinstance(policy, OracleBound):
             durations.append(np.where(bound <= steps, bound, steps).astype(np.int64))
             successes.append(bound <= steps)
@@ -93,6 +124,8 @@ def run_policy(
             ]
             bar.update(n)
             continue
+        if hasattr(policy, "horizon"):
+            policy.horizon = steps  # planners that time their parking to the step limit
         policy.reset(env.beliefs(), seed)
         for _ in range(steps):
             live = ~env.done
@@ -112,22 +145,29 @@ def run_policy(
     bar.close()
     d = np.concatenate(durations)
     success = np.concatenate(successes)
-    mean_oracle = float(np.concatenate(oracle).mean())
+    mean_oracle = float(np.concatenate(oracle).mean()) if held else None
     cdf = [(float(((d <= t) & success).mean())) for t in range(1, steps + 1)]
-    return {
+    result = {
         "policy": spec,
         "scenario": {**cfg.as_dict(), "steps": steps},
         "seed": seed,
         "episodes": episodes,
+        "finish": cfg.finish,
         "success_rate": float(success.mean()),
         "mean_steps": float(d.mean()),
         "steps_cdf": cdf,
         "oracle_mean_steps": mean_oracle,
-        "duration_ratio_to_oracle": float(d.mean() / mean_oracle) if mean_oracle > 0 else None,
+        "duration_ratio_to_oracle": float(d.mean() / mean_oracle) if held and mean_oracle > 0 else None,
         "collisions_per_episode": collisions / episodes,
         "decision_ms_per_vehicle": (1000.0 * act_seconds / decisions) if decisions else None,
-        "per_episode": records,
     }
+    if cfg.finish == "found":  # the first find of each episode; an episode without one counts as the limit
+        first = [min((s for s in r["found_steps"] if s is not None), default=steps) for r in records]
+        result["mean_first_find_steps"] = float(np.mean(first))
+    elif cfg.finish == "covered":
+        result["mean_covered_fraction"] = float(np.mean([r["covered_fraction"] for r in records]))
+    result["per_episode"] = records
+    return result
 
 
 def evaluate(
@@ -142,5 +182,5 @@ def evaluate(
 ) -> list[dict]:
     """Evaluate every policy on the same episodes (on the fixed map `blocked` when given)."""
     for spec in specs:
-        make_policy(spec)  # fail on a bad spec before any work
+        check_finish(cfg, make_policy(spec))  # fail on a bad spec, or the oracle off `held`, before any work
     return [run_policy(cfg, s, episodes, seed, steps, chunk, progress, blocked) for s in specs]

@@ -30,6 +30,7 @@ from swarmctl.mavlink.gcs import GcsForwarder
 from swarmctl.mission import timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.detector import SensorFeed, UdpSensorSource
+from swarmctl.mission.finish import FinishLine
 from swarmctl.mission.flight import cancel
 from swarmctl.mission.launch import start
 from swarmctl.mission.plan import MissionPlan
@@ -82,6 +83,8 @@ class Controller:
         self.search_started: float | None = None
         self.ended: float | None = None
         self.on_targets: list[tuple[int, int]] = []  # the cells hovered on when the search ended
+        self.finish = FinishLine(plan)  # the mission's finish line, its finds and coverage (mission.finish)
+        self.policy.set_hold(self.finish.to_hold)  # the hover rule parks once that many targets are known
         self.decide_times: list[float] = []
         self.round_times: list[float] = []
         self.wait_times: list[float] = []  # per round: waiting for vehicles to arrive and for detectors
@@ -115,6 +118,9 @@ class Controller:
             grid=[self.grid.width, self.grid.height],
             vehicles=[v.name for v in self.plan.spec.vehicles],
             fence=self.fence,
+            finish=self.finish.rule,
+            expected_targets=self.finish.expected,
+            on_find=self.finish.on_find,
             **self.plan.policy.recorded(),
         )
         try:
@@ -257,6 +263,7 @@ class Controller:
             self.outcome = "interrupted" if self.stopping else "failed"
         self.ended = time.monotonic()
         self.on_targets = [a.cell for a in self.agents if a.state is State.HOVER and a.cell is not None]
+        self.finish.close(self, self.outcome)
         for a in self.agents:
             if a.rejoin_task is not None:
                 a.rejoin_task.cancel()
@@ -426,6 +433,7 @@ class Controller:
             links=links,
             overhead_ms=self.overhead_ms(),
         )
+        out.update(self.finish.summary(self, self.outcome, out["targets_found"]))
         if extra:
             out.update(extra)
         return out

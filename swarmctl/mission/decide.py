@@ -13,22 +13,34 @@ a policy and cannot fly.
 Inference runs on one CPU thread (swarmctl.policy.threads; SWARMCTL_THREADS changes it for fly, agent
 and demo).
 
-Hovering is the controller's HOVER state, so the agents asked to choose never hover themselves.
+Hovering is the controller's HOVER state, so the agents asked to choose never hover themselves. When
+an agent on a target parks there is the hover rule's call (`FieldPolicy.parks`): `defer` unless the
+policy spec names another with `:hover=`, so nobody parks while the swarm knows fewer targets than it
+has vehicles.
+With `[mission] on_find = "mark"` nobody hovers on a target: every target found is reported and done,
+so the policy is given beliefs without them (`targets_done`): no known target, and the value near each
+removed as a taken target's is (swarmctl.world.taken), so planners and the network search on for
+others instead of flying back to it.
 """
 
 from __future__ import annotations
 
 import hashlib
+import re
 from dataclasses import dataclass
+
+import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge, beliefs_from_knowledge
 from swarmctl.policy.ddql import DDQLPolicy
+from swarmctl.policy.hover import DEFER, HOVER_RULES, parking
 from swarmctl.policy.registry import make_policy
 from swarmctl.policy.threads import set_inference_threads
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
+from swarmctl.world.taken import remove_taken_targets
 
-FIELD_POLICIES = "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random"
+FIELD_POLICIES = "coordinated, ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random"
 
 
 def obs_digest(obs) -> str:
@@ -48,7 +60,7 @@ class FieldPolicy:
     """One policy for every agent of a process; `choose` decides for all of them at once. The model is
     loaded once, here."""
 
-    def __init__(self, spec: str, seed: int = 0):
+    def __init__(self, spec: str, seed: int = 0, hover: str | None = None):
         self.spec = spec.strip()
         self.seed = int(seed)
         set_inference_threads()  # before the model is loaded: SWARMCTL_THREADS, default one thread
@@ -57,6 +69,13 @@ class FieldPolicy:
                 f"policy {self.spec!r} cannot fly a mission: it reads the hidden targets; use one of {FIELD_POLICIES}"
             )
         self.policy = make_policy(self.spec)
+        # a mission parks on a target as its spec's `:hover=` says, else as `hover` says (a recording's
+        # rule, for replay --verify), else it defers (swarmctl.policy.hover)
+        self.hover = self.policy.hover if re.search(r":hover=", self.spec) else (hover or DEFER)
+        if self.hover not in HOVER_RULES:
+            raise InputError(f"hover rule {self.hover!r} is unknown: use one of {', '.join(HOVER_RULES)}")
+        self.policy.hover = self.hover
+        self.hold: int | None = None
         if isinstance(self.policy, DDQLPolicy):
             self.settings = self.policy.field_settings(PHI_TOLERANCE)
         else:
@@ -84,12 +103,29 @@ class FieldPolicy:
 
     def recorded(self) -> dict:
         """What the recording's mission line keeps so that `swarmctl replay --verify` rebuilds this policy."""
-        return dict(seed=self.seed, weights_sha256=self.weights_sha256, forward=self.forward)
+        return dict(
+            seed=self.seed, weights_sha256=self.weights_sha256, forward=self.forward, hover=self.hover, hold=self.hold
+        )
 
-    def beliefs(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> Beliefs:
+    def set_hold(self, hold: int | None) -> None:
+        """The targets the mission is to hold (its finish line's N), when fewer than its vehicles: the
+        swarm parks once it knows that many (None: one a vehicle)."""
+        self.hold = None if hold is None else int(hold)
+        self.policy.hold = self.hold
+
+    def parks(self, known_targets: int, vehicles: int) -> bool:
+        """Whether an agent on a free target it knows parks there now (HOVER), the swarm of `vehicles`
+        knowing `known_targets` targets: the hover rule (`defer` unless the spec names another)."""
+        return bool(parking(self.hover, known_targets, vehicles, self.hold))
+
+    def beliefs(
+        self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None, targets_done: bool = False
+    ) -> Beliefs:
         """The Beliefs of the searching agents whose Knowledge is given, at mission step `step`, in a swarm
-        of `vehicles` (default: as many as the knowledges name), observed with this policy's settings."""
-        return beliefs_from_knowledge(knowledges, vehicles, self.settings, step)
+        of `vehicles` (default: as many as the knowledges name), observed with this policy's settings;
+        with `targets_done` (on_find = "mark") the known targets are left out (`without_targets`)."""
+        beliefs = beliefs_from_knowledge(knowledges, vehicles, self.settings, step)
+        return without_targets(beliefs) if targets_done else beliefs
 
     def start(self, beliefs: Beliefs) -> None:
         """Start the policy on the mission's first beliefs (its seed; lawnmower plans its lanes); once."""
@@ -109,8 +145,34 @@ class FieldPolicy:
             for m, o, qv, by in zip(d.moves[0].tolist(), d.obs[0], d.q[0].tolist(), d.by_frontier[0].tolist())
         ]
 
-    def choose(self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None) -> list[Choice]:
+    def choose(
+        self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None, targets_done: bool = False
+    ) -> list[Choice]:
         """Moves for the searching agents whose Knowledge is given (`beliefs`, then `decide`)."""
         if not knowledges:
             return []
-        return self.decide(self.beliefs(knowledges, step, vehicles))
+        return self.decide(self.beliefs(knowledges, step, vehicles, targets_done))
+
+
+def without_targets(beliefs: Beliefs) -> Beliefs:
+    """`beliefs` with every known target done (on_find = "mark": found, reported, not to be flown back
+    to): none in `targets`, and phi_hat without the value they explain, removed as a taken target's
+    (swarmctl.world.taken.remove_taken_targets; what other, unknown targets raise stays). Values stay
+    on the quantised levels, so the recorded inputs decide the same again (replay --verify)."""
+    targets = beliefs.targets
+    if not np.logical_or.reduce(targets, axis=None):
+        return beliefs
+    s = beliefs.settings
+    phi_hat = remove_taken_targets(beliefs.phi_hat, beliefs.explored, targets, s.sigma2, s.phi_cutoff, s.phi_tolerance)
+    return Beliefs(
+        beliefs.explored,
+        phi_hat,
+        beliefs.obstacles,
+        np.zeros(targets.shape, dtype=bool),
+        beliefs.positions,
+        beliefs.hovering,
+        beliefs.me,
+        beliefs.episodes,
+        beliefs.step,
+        s,
+    )

@@ -287,6 +287,7 @@ def _report(
         a.exchange.report_targets(np.array(targets, dtype=np.int64), a.visited.get(origin, c.step), seen_from=origin)
     latlon = [c.grid.cell_to_latlon(*t) for t in fresh]
     c.rec.event("targets", vehicle=a.name, cells=fresh, step=c.step, latlon=latlon)
+    c.finish.found(c, a, fresh)  # the swarm's first sight of each: a find (swarmctl.mission.finish)
 
 
 async def cancel(task: asyncio.Future) -> None:

@@ -7,7 +7,7 @@
   footprint from the policy's fov, knowledge push from the swarm's size;
 - refuses a mission flying below the grid's planning altitude (the grid blocks only the buildings at
   least that tall) or with a cell size other than the grid's, and a footprint more than 0.25 cell
-  from the fov the policy was trained with;
+  from the fov the policy was trained with, and more expected targets than the grid has free cells;
 - builds the policy once (loading its checkpoint): the plan keeps the object, the controller uses it;
 - refuses an onboard plan (some vehicles only: `swarmctl agent`) without a `[knowledge] channel`: its
   agents share knowledge with the other processes' agents only through it.
@@ -84,6 +84,7 @@ def make_plan(
     if policy is None:
         policy = make_policy(m.policy, seed, where)
     footprint = _check_footprint(m.footprint_m, cell, policy, where)
+    _check_expected(m, grid, where)
     push = spec.knowledge.push if spec.knowledge.push is not None else len(spec.vehicles) <= PUSH_UP_TO
     resolved = spec.model_copy(
         update=dict(
@@ -117,6 +118,17 @@ def make_plan(
     return MissionPlan(
         resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
     )
+
+
+def _check_expected(m: MissionTable, grid: Any, where: str) -> None:
+    """expected_targets no more than the grid's free cells (a target a cell): else the finish line is
+    never met."""
+    free = int((~grid.blocked).sum())
+    if m.expected_targets is not None and m.expected_targets > free:
+        raise InputError(
+            f"{where}: mission.expected_targets = {m.expected_targets}: the grid has {free} free cells, at most one "
+            f"target each; write expected_targets = {free} at most, or leave it out (unknown)"
+        )
 
 
 def load_grid(spec: MissionSpec) -> Any:

@@ -50,7 +50,7 @@ from swarmctl.mission.inputs import InputsEncoder
 _TS = struct.Struct(">Q")
 TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (at least once a second, so a crash loses under a second)
 # Event kinds that change what summary.json says: a running summary is rewritten after each of them.
-CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "end", "end_action", "end_action_failed"})
+CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "find", "end", "end_action", "end_action_failed"})
 
 
 _SEPARATORS = (",", ":")  # compact JSON lines

@@ -3,7 +3,9 @@
 Each round, for the agents of this process that are searching:
 1. merge what arrived on the knowledge channel, track the distance flown;
 2. state updates: each agent's own transitions (link, pilot, battery: Agent.next_state), and an
-   agent on a known target cell that no other vehicle hovers over starts hovering there; then every
+   agent on a known target cell that no other vehicle hovers over starts hovering there when the
+   hover rule lets it park (FieldPolicy.parks: by default once the swarm knows as many targets as it
+   has vehicles); then every
    commanded vehicle's position against its setpoint (off course: flagged, re-commanded, and taken
    over when it persists: swarmctl.mission.watch);
 3. the policy chooses a move for every searching agent at once (one batch), and the recording keeps
@@ -16,7 +18,8 @@ Each round, for the agents of this process that are searching:
    live agent shares (a delta of new cells and its position; digests and repairs).
 
 The search ends when every live vehicle hovers on a distinct target ("complete", or "partial" when
-some vehicles dropped out), when the time limit passes ("time limit"), when no vehicle is left
+some vehicles dropped out), or at the mission's own finish line (`[mission] finish`, expected_targets:
+swarmctl.mission.finish), when the time limit passes ("time limit"), when no vehicle is left
 ("failed") or when the mission is stopped ("interrupted").
 """
 
@@ -75,7 +78,11 @@ def ended(c: Controller) -> str | None:
     live = [a for a in c.agents if a.live]
     if not live and not any(a.state is State.LOST for a in c.agents):
         return "failed"
-    if live and all(a.state is State.HOVER for a in live) and others_hovering(c):
+    if not c.finish.classic:  # the mission file's finish line (swarmctl.mission.finish)
+        outcome = c.finish.check(c)
+        if outcome is not None:
+            return outcome
+    elif live and all(a.state is State.HOVER for a in live) and others_hovering(c):
         cells = [a.cell for a in live]
         if len(set(cells)) == len(cells):
             # complete when every vehicle is hovering on a target; partial when some dropped out
@@ -120,7 +127,15 @@ def update_states(c: Controller) -> None:
                 c.spawn(c.quietly(a.vehicle.rtl()), f"rtl {a.name}")
                 a.cell = None
             continue
-        if a.state is State.SEARCH and a.cell is not None and a.cell in a.knowledge.targets:
+        # on_find = "mark": a find is reported and searched past, never hovered on (swarmctl.mission.finish)
+        if c.finish.marks:
+            continue
+        if (
+            a.state is State.SEARCH
+            and a.cell is not None
+            and a.cell in a.knowledge.targets
+            and c.policy.parks(len(a.knowledge.targets), len(c.plan.spec.vehicles))  # the hover rule
+        ):
             hovering = {b.cell for b in c.agents if b is not a and b.state is State.HOVER}
             hovering |= {p.cell for v, p in a.knowledge.peers.items() if p.on_target and not c.ours(v)}
             if a.cell not in hovering:
@@ -134,7 +149,8 @@ async def decision_round(c: Controller) -> bool:
     searching = [a for a in c.agents if a.state is State.SEARCH]
     t = time.monotonic()
     n = len(c.plan.spec.vehicles)
-    beliefs = c.policy.beliefs([a.knowledge for a in searching], c.step, n) if searching else None
+    knowledges = [a.knowledge for a in searching]
+    beliefs = c.policy.beliefs(knowledges, c.step, n, targets_done=c.finish.marks) if searching else None
     choices = c.policy.decide(beliefs) if beliefs is not None else []
     c.decide_times.append(time.monotonic() - t)
     proposed = {

@@ -14,7 +14,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, printable
-from swarmctl.mission import sharing
+from swarmctl.mission import finish, sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
@@ -22,6 +22,7 @@ from swarmctl.mission.recorder import Recorder
 
 log = logging.getLogger(__name__)
 
+# "complete": the search ended as its mission file says it should (its finish line, swarmctl.mission.finish)
 OUTCOME_EXIT = {
     "complete": EXIT_OK,
     "partial": EXIT_FAILED,
@@ -47,6 +48,7 @@ def describe(plan: MissionPlan) -> list[str]:
         + (f", from {m.grid}" if m.grid else ""),
         f"altitude {m.altitude:g} m above home{above}",
         f"end action {m.end_action}, time limit {spec.timing.time_limit:g} s",
+        finish.describe(spec),
         f"sensor footprint {m.footprint_m:g} m round each cell reached ({plan.fov:g} cells)",
         "fence: the area's boundary, uploaded to every vehicle before take-off"
         if m.fence
@@ -181,8 +183,20 @@ def run_controller(
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
 
 
+def _found_by(t: dict) -> dict:
+    """A target's find, where the summary has it: the vehicle that found it and the seconds from the
+    search's start (swarmctl.mission.finish)."""
+    out = {}
+    if t.get("vehicle") is not None:
+        out["vehicle"] = t["vehicle"]
+    if t.get("time_s") is not None:
+        out["found_s"] = t["time_s"]
+    return out
+
+
 def write_targets_geojson(path: Path, summary: dict) -> Path:
-    """The targets found as GeoJSON points (lon, lat), with their cell and the step of the first report."""
+    """The targets found as GeoJSON points (lon, lat), with their cell, the step of the first report and,
+    where known, the vehicle that found it and when (`found_s`: seconds from the search's start)."""
     import json
 
     features = [
@@ -194,6 +208,7 @@ def write_targets_geojson(path: Path, summary: dict) -> Path:
                 "cell_y": t["cell"][1],
                 "first_step": t["step"],
                 "mission": summary["mission"],
+                **_found_by(t),
             },
         }
         for t in summary["targets_found"]
@@ -214,7 +229,10 @@ def write_targets_kml(path: Path, summary: dict) -> Path:
         mark = ET.SubElement(doc, "Placemark")
         x, y = t["cell"]
         ET.SubElement(mark, "name").text = f"target {x},{y}"
-        ET.SubElement(mark, "description").text = f"cell ({x}, {y}), first reported at step {t['step']}"
+        found = _found_by(t)
+        by = f" by {printable(found['vehicle'])}" if "vehicle" in found else ""
+        when = f", {found['found_s']:g} s into the search" if "found_s" in found else ""
+        ET.SubElement(mark, "description").text = f"cell ({x}, {y}), first reported at step {t['step']}{by}{when}"
         point = ET.SubElement(mark, "Point")
         ET.SubElement(point, "coordinates").text = f"{t['lon']:.7f},{t['lat']:.7f},0"
     ET.ElementTree(kml).write(path, encoding="utf-8", xml_declaration=True)

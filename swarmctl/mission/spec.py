@@ -59,6 +59,9 @@ from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_tabl
 
 MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
 END_ACTIONS = ("land", "rtl", "hover")
+FINISH_RULES = ("held", "found", "covered")  # when the search is complete (swarmctl.mission.finish)
+ON_FIND = ("hold", "mark")  # what a vehicle does at a target it finds
+MAX_EXPECTED_TARGETS = 1 << 15  # a target a cell at most, and no grid a mission flies has more cells
 PUSH_UP_TO = 12  # knowledge push is on for swarms of up to this many vehicles (see [knowledge] push)
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # names become parts of recording folder names
 NAME_SPAN = "letters, digits, . _ - (up to 64)"
@@ -282,6 +285,26 @@ class MissionTable(Table):
         default_text="none",
     )
     fence: bool = setting(False, "upload the area's boundary (plus one cell) to every vehicle as its geofence")
+    finish: Literal[FINISH_RULES] = setting(
+        "held",
+        "when the search is complete: held (expected_targets distinct targets hovered on by live vehicles), "
+        "found (expected_targets targets known to the swarm; unknown: the area covered) or covered (every "
+        "cell the vehicles can reach explored)",
+    )
+    expected_targets: int | None = setting(
+        None,
+        "N, the targets the finish line counts (held: at most one a vehicle)",
+        ge=1,
+        le=MAX_EXPECTED_TARGETS,
+        unit="targets",
+        example=3,
+        default_text="held: the vehicle count; found: unknown, so the area covered",
+    )
+    on_find: Literal[ON_FIND] = setting(
+        "hold",
+        "what a vehicle does at a target it finds: hold (hover on it to the end) or mark (report it: a find "
+        "event, a STATUSTEXT, the summary; and search on); mark needs finish found or covered",
+    )
 
     @field_validator("policy")
     @classmethod
@@ -312,6 +335,13 @@ class MissionTable(Table):
                 "give area with buildings, or plan a grid with `swarmctl plan --buildings`",
                 ("buildings",),
                 self.buildings,
+            )
+        if self.finish == "held" and self.on_find == "mark":
+            raise SpecError(
+                'contradicts finish = "held" (a marking vehicle never hovers on a target, so none is held)',
+                'write finish = "found" or finish = "covered" with on_find = "mark", or on_find = "hold"',
+                ("on_find",),
+                self.on_find,
             )
         return self
 
@@ -499,6 +529,15 @@ class MissionSpec(Table):
                         ("vehicles", i, "sysid"),
                         v.sysid,
                     )
+        m = self.mission
+        if m.finish == "held" and m.expected_targets is not None and m.expected_targets > len(self.vehicles):
+            raise SpecError(
+                f"is more than the {len(self.vehicles)} vehicle(s) listed, and a vehicle holds one target",
+                f'write expected_targets = {len(self.vehicles)} at most, or finish = "found" to count targets '
+                "found without holding them",
+                ("mission", "expected_targets"),
+                m.expected_targets,
+            )
         return self
 
     @classmethod

@@ -19,6 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
+from swarmctl.policy.hover import FIRST, NO, parks
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, N_ACTIONS, STAY, block_starts, move_table
 
@@ -40,19 +41,22 @@ _STAY_ONLY.setflags(write=False)
 _any, _all = np.logical_or.reduce, np.logical_and.reduce
 
 
-def allowed_moves(beliefs: Beliefs, hover: bool = True, mask: bool = True) -> np.ndarray:
+def allowed_moves(beliefs: Beliefs, hover: bool | str = True, mask: bool = True, hold: int | None = None) -> np.ndarray:
     """(B, U, 5) bool: the moves the decision rules allow.
 
-    hover: a decider that hovers on a target may only stay, and any other may not stay. mask: no move
-    off the map or into a cell the decider knows to be blocked (an obstacle, or a vehicle hovering on
-    a target). A decider left with no move at all may stay."""
+    hover (a rule of swarmctl.policy.hover; True is `first`, False `no`): a decider that parks on a
+    target may only stay, and any other may not stay. mask: no move off the map or into a cell the
+    decider knows to be blocked (an obstacle, or a vehicle hovering on a target). A decider left with
+    no move at all may stay. hold: targets to hold when fewer than the vehicles (hover.park_allowed)."""
+    rule = hover if isinstance(hover, str) else (FIRST if hover else NO)
+    parked = None if rule == NO else (beliefs.hovering_self if rule == FIRST else parks(beliefs, rule, hold))
     crews = beliefs.crews
     if crews is not None:
-        return _allowed_few(beliefs, crews, hover, mask)
-    return _allowed_batched(beliefs, hover, mask)
+        return _allowed_few(beliefs, crews, parked, mask)
+    return _allowed_batched(beliefs, parked, mask)
 
 
-def _allowed_batched(beliefs: Beliefs, hover: bool, mask: bool) -> np.ndarray:
+def _allowed_batched(beliefs: Beliefs, parked: np.ndarray | None, mask: bool) -> np.ndarray:
     """allowed_moves in numpy calls whose number does not grow with the batch (the reference
     _allowed_few is tested against)."""
     b, u = beliefs.batch, beliefs.deciders
@@ -70,8 +74,8 @@ def _allowed_batched(beliefs: Beliefs, hover: bool, mask: bool) -> np.ndarray:
             allowed &= ~_any(dest[..., None] == cells[:, :, None, :], axis=-1)
     else:
         allowed = np.ones((b, u, len(MOVES)), dtype=bool)
-    if hover:
-        here = beliefs.hovering_self
+    if parked is not None:
+        here = parked
         allowed[..., STAY] = here
         if _any(here, axis=None):
             allowed[here] = _STAY_ONLY
@@ -87,15 +91,17 @@ def _destinations(width: int, height: int) -> list[list[int]]:
     return move_table(width, height).tolist()
 
 
-def _allowed_few(beliefs: Beliefs, crews: list, hover: bool, mask: bool) -> np.ndarray:
+def _allowed_few(beliefs: Beliefs, crews: list, parked: np.ndarray | None, mask: bool) -> np.ndarray:
     """allowed_moves for a few deciders, from Beliefs.crews (Python ints): the same rules."""
+    hover = parked is not None
+    parks_here = parked.reshape(-1).tolist() if parked is not None else None
     h = beliefs.height
     size = beliefs.width * h
     table = _destinations(beliefs.width, h)
     obstacles = beliefs.obstacles.reshape(-1) if mask and beliefs.any_obstacle else None
     rows = []
-    for i, ((x, y), here, known) in enumerate(crews):
-        if hover and here:
+    for i, ((x, y), _, known) in enumerate(crews):
+        if parks_here is not None and parks_here[i]:
             rows.append(_STAY_ONLY_ROW)
             continue
         if mask:

@@ -6,10 +6,11 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
 - `tau=T`: the softmax temperature (default 0.1; 0 < T <= 100);
 - `taken=remove|keep`: the targets other vehicles sit on are removed from the value channel, as
   LA(n) removes them from its value map (default remove; keep is the paper's observation);
-- `hover=yes|no`: a vehicle on a target that no lower-numbered vehicle holds stays there and every
-  other vehicle moves: "stay" is only ever the hover, as in the controller's HOVER state. This is
-  our answer to the paper's stragglers, vehicles that stop far from any target once the others have
-  found theirs (default yes; no lets the network decide, as in the paper);
+- `hover=first|defer|no` (swarmctl.policy.hover; `yes` is `first`): with `first` a vehicle on a target
+  that no lower-numbered vehicle holds stays there and every other vehicle moves: "stay" is only ever
+  the hover, as in the controller's HOVER state (the default: the networks were trained so); `defer`
+  parks only once the swarm knows as many targets as it has vehicles (before that a vehicle on a
+  target moves on); `no` lets the network decide, as in the paper;
 - `mask=yes|no`: moves off the map or into an obstacle the vehicle knows of are never chosen, as
   LA(n) scores them -inf (default yes; no as in the paper);
 - `straggler=network|frontier`: who steers the last vehicle still searching once every other one
@@ -39,6 +40,7 @@ from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.policy.draws import SOFTMAX, Draws
 from swarmctl.policy.forward import BACKENDS as FORWARD_BACKENDS
 from swarmctl.policy.forward import make_forward
+from swarmctl.policy.hover import HOVER_ALIASES
 from swarmctl.policy.planners import FrontierPolicy
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
@@ -64,7 +66,7 @@ class DDQLPolicy:
         tau: float | None = 0.1,
         name: str | None = None,
         remove_taken: bool = True,
-        hover: bool = True,
+        hover: bool | str = True,
         mask: bool = True,
         straggler_frontier: bool = False,
         forward: str = "auto",
@@ -72,6 +74,7 @@ class DDQLPolicy:
         self.path = path
         self.tau = tau
         self.remove_taken, self.hover, self.mask = remove_taken, hover, mask
+        self.hold: int | None = None  # targets the mission holds, when fewer than its vehicles
         self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
@@ -108,7 +111,7 @@ class DDQLPolicy:
         obs = observe(seen, self.remove_taken)
         q = self.q_values(obs)
         u = Draws(self.seed, beliefs).deciders(SOFTMAX)
-        moves = choose(q, allowed_moves(beliefs, self.hover, self.mask), self.tau, u)
+        moves = choose(q, allowed_moves(beliefs, self.hover, self.mask, self.hold), self.tau, u)
         by = np.zeros(moves.shape, dtype=bool)
         if self.straggler_frontier:
             last = beliefs.last_searching()
@@ -140,7 +143,7 @@ def split_options(rest: str) -> tuple[str, str]:
 
 _CHOICES = {
     "taken": ("remove", "keep"),
-    "hover": ("yes", "no"),
+    "hover": ("yes", "no", "first", "defer"),
     "mask": ("yes", "no"),
     "straggler": ("network", "frontier"),
     "forward": FORWARD_BACKENDS,
@@ -175,7 +178,7 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
         tau=tau,
         name=spec,
         remove_taken=options.get("taken", "remove") == "remove",
-        hover=options.get("hover", "yes") == "yes",
+        hover=HOVER_ALIASES.get(options.get("hover", "first"), options.get("hover", "first")),
         mask=options.get("mask", "yes") == "yes",
         straggler_frontier=options.get("straggler", "network") == "frontier",
         forward=options.get("forward", "auto"),

@@ -21,11 +21,15 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from swarmctl.policy.draws import LOOKAHEAD, Draws
+from swarmctl.policy.hover import FIRST, parks
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 
 
 class LookAhead:
+    hover = FIRST  # the hover rule (swarmctl.policy.hover)
+    hold: int | None = None  # targets the mission holds, when fewer than its vehicles (hover.park_allowed)
+
     def __init__(self, depth: int = 4):
         self.depth = depth
         self.name = f"la:{depth}"
@@ -56,9 +60,12 @@ class LookAhead:
         views = sliding_window_view(padded, (self.side, self.side), axis=(1, 2))
         patches = views[np.arange(n_veh), pos[:, 0], pos[:, 1]].reshape(n_veh, -1)
         scores = patches[:, self.patch_index].sum(axis=-1)  # (N, S)
+        if self.hover != FIRST:  # on a target it may not park on: staying there is not a choice
+            moving_on = (beliefs.hovering_self & ~parks(beliefs, self.hover, self.hold)).reshape(-1)
+            scores[np.ix_(moving_on, self.first_move == STAY)] = -np.inf
         best = scores.max(axis=1, keepdims=True)
         ties = scores >= best - 1e-6
         draws = Draws(self.seed, beliefs).deciders(LOOKAHEAD, len(self.first_move)).reshape(n_veh, -1)
         choice = np.argmax(ties * (draws + 1.0), axis=1)
         actions = self.first_move[choice].reshape(b, u)
-        return np.where(beliefs.hovering_self, STAY, actions)
+        return np.where(parks(beliefs, self.hover, self.hold), STAY, actions)

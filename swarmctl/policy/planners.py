@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from swarmctl.policy.draws import CLAIMS, NAVIGATE, RANDOM, Draws, uniform
+from swarmctl.policy.hover import FIRST, NO, parking, parks
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.paths import UNREACHABLE, grid_distances, step_towards
@@ -27,16 +28,20 @@ _CHUNK_CELLS = 8_000_000  # distance-map cells computed at once (bounds memory o
 
 
 class RandomPolicy:
-    """Uniform over the five moves (the paper's replay-prefill policy)."""
+    """Uniform over the five moves (the paper's replay-prefill policy); with a hover rule other than
+    `no` (its default), a vehicle that parks on a target stays."""
 
     name = "random"
+    hover = NO
+    hold: int | None = None  # targets the mission holds, when fewer than its vehicles (hover.park_allowed)
 
     def reset(self, beliefs: Beliefs, seed: int) -> None:
         self.seed = int(seed)
 
     def act(self, beliefs: Beliefs) -> np.ndarray:
         u = Draws(self.seed, beliefs).deciders(RANDOM)
-        return np.minimum((u * len(MOVES)).astype(np.int64), len(MOVES) - 1)
+        moves = np.minimum((u * len(MOVES)).astype(np.int64), len(MOVES) - 1)
+        return moves if self.hover == NO else np.where(parks(beliefs, self.hover, self.hold), STAY, moves)
 
 
 # --- the swarm plan, as one belief holder sees it ------------------------------------------------------
@@ -131,10 +136,27 @@ def navigate(pos: np.ndarray, goals: np.ndarray, passable: np.ndarray, ties: np.
     return step_towards(grid_distances(passable, src), pos, ties)
 
 
+def deciders_part(beliefs: Beliefs, plan) -> np.ndarray:
+    """(B, U, ...): each decider's own entry of the swarm plan its beliefs make, where
+    plan(beliefs, hb, hu) gives (M, N, ...) for every vehicle as the holders (hb, hu) see the swarm.
+    With shared beliefs the plan is made once per batch; holders go in chunks that bound memory."""
+    b, u, n = beliefs.batch, beliefs.deciders, beliefs.vehicles
+    holder = np.where(beliefs.shared()[:, None], 0, np.arange(u)[None, :])  # whose plan each decider plays
+    hb_all, hu_all = np.nonzero(holder == np.arange(u)[None, :])
+    row = np.full((b, u), -1, dtype=np.int64)
+    row[hb_all, hu_all] = np.arange(len(hb_all))
+    per = max(1, _CHUNK_CELLS // max(1, n * beliefs.width * beliefs.height))
+    chunks = range(0, len(hb_all), per)
+    plans = np.concatenate([plan(beliefs, hb_all[i : i + per], hu_all[i : i + per]) for i in chunks])
+    return plans[row[np.arange(b)[:, None], holder], beliefs.me]
+
+
 class _SwarmPlanner:
     """What frontier and lawnmower share: the swarm plan per belief holder, the decider's part of it."""
 
     name = "planner"
+    hover = FIRST  # the hover rule (swarmctl.policy.hover)
+    hold: int | None = None  # targets the mission holds, when fewer than its vehicles (hover.park_allowed)
 
     def reset(self, beliefs: Beliefs, seed: int) -> None:
         self.seed = int(seed)
@@ -149,13 +171,18 @@ class _SwarmPlanner:
         """Every vehicle's goal (M, N, 2) as the deciders (hb, hu) see the swarm."""
         draws = Draws(self.seed, beliefs)
         positions = beliefs.positions[hb, hu]
-        active = beliefs.others[hb, hu] & ~beliefs.hovering[hb, hu]
-        active[np.arange(len(hb)), beliefs.me[hb, hu]] = ~beliefs.hovering_self[hb, hu]
-        hover_cells = beliefs.hover_cells[hb, hu]
+        park = parking(self.hover, beliefs.targets[hb, hu].sum((1, 2)), beliefs.vehicles, self.hold)  # (M,)
+        parked = beliefs.hovering[hb, hu] & park[:, None]
+        active = beliefs.others[hb, hu] & ~parked
+        active[np.arange(len(hb)), beliefs.me[hb, hu]] = ~(beliefs.hovering_self[hb, hu] & park)
+        if park.all():
+            hover_cells = beliefs.hover_cells[hb, hu]
+        else:  # the cells of the vehicles that park
+            hover_cells = beliefs.hover_cells[hb, hu] & park[:, None, None]
         passable = ~(beliefs.obstacles[hb, hu] | hover_cells)
         dist = distances_from(positions, passable, active)
         cells, valid = target_lists(beliefs.targets[hb, hu] & ~hover_cells)
-        slot = assign_targets(dist, active, cells, valid)
+        slot = assign_targets(dist, active, cells, valid & park[:, None])
         has_target = slot >= 0
         goals = np.where(has_target[..., None], np.take_along_axis(cells, np.maximum(slot, 0)[..., None], 1), positions)
         fixed, has_fixed = self.fixed_goals(beliefs, hb, hu)
@@ -173,16 +200,7 @@ class _SwarmPlanner:
 
     def goals(self, beliefs: Beliefs) -> np.ndarray:
         """(B, U, 2): each decider's own goal in the swarm plan it makes (once per batch when shared)."""
-        b, u, n = beliefs.batch, beliefs.deciders, beliefs.vehicles
-        holder = np.where(beliefs.shared()[:, None], 0, np.arange(u)[None, :])  # whose plan each decider plays
-        hb_all, hu_all = np.nonzero(holder == np.arange(u)[None, :])
-        row = np.full((b, u), -1, dtype=np.int64)
-        row[hb_all, hu_all] = np.arange(len(hb_all))
-        per = max(1, _CHUNK_CELLS // max(1, n * beliefs.width * beliefs.height))
-        plans = np.concatenate(
-            [self.plan(beliefs, hb_all[i : i + per], hu_all[i : i + per]) for i in range(0, len(hb_all), per)]
-        )
-        return plans[row[np.arange(b)[:, None], holder], beliefs.me]
+        return deciders_part(beliefs, self.plan)
 
     def act(self, beliefs: Beliefs) -> np.ndarray:
         b, u = beliefs.batch, beliefs.deciders
@@ -190,7 +208,7 @@ class _SwarmPlanner:
         ties = Draws(self.seed, beliefs).deciders(NAVIGATE, len(MOVES)).reshape(b * u, -1)
         passable = ~beliefs.blocked.reshape(b * u, beliefs.width, beliefs.height)
         moves = navigate(beliefs.pos.reshape(b * u, 2), goals, passable, ties).reshape(b, u)
-        return np.where(beliefs.hovering_self, STAY, moves)
+        return np.where(parks(beliefs, self.hover, self.hold), STAY, moves)
 
 
 class FrontierPolicy(_SwarmPlanner):

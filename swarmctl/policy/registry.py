@@ -4,26 +4,53 @@
 from __future__ import annotations
 
 from swarmctl.errors import InputError
+from swarmctl.policy.coordinated import CoordinatedPolicy
+from swarmctl.policy.hover import HOVER_ALIASES, HOVER_RULES
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.planners import FrontierPolicy, LawnmowerPolicy, RandomPolicy
 
 POLICY_HELP = (
-    "random, la:N (N = 1..6), lawnmower, frontier, oracle, "
-    "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..][:straggler=..], ddql-greedy:PATH"
+    "coordinated, frontier, lawnmower, la:N (N = 1..6), random, oracle, "
+    "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..][:straggler=..], ddql-greedy:PATH; "
+    "any but oracle takes :hover=defer|first|no"
 )
+
+
+def _hover_option(spec: str, name: str, arg: str) -> tuple[str, str | None]:
+    """`arg` without a trailing `hover=RULE` option (`la:4:hover=defer`, `frontier:hover=no`), and the rule."""
+    head, sep, rule = arg.rpartition("hover=")
+    if not sep or (head and not head.endswith(":")):
+        return arg, None
+    rule = HOVER_ALIASES.get(rule, rule)
+    if rule not in HOVER_RULES:
+        raise InputError(f"--policy {spec!r}: hover must be {', '.join(HOVER_RULES)}, as in {name}:hover=defer")
+    return head[:-1] if head else "", rule
 
 
 def make_policy(spec: str):
     """Build the policy a spec names; InputError with the accepted forms otherwise."""
     spec = spec.strip()
     name, _, arg = spec.partition(":")
+    if name in ("ddql", "ddql-greedy", "oracle"):
+        return _make(spec, name, arg)
+    arg, rule = _hover_option(spec, name, arg)
+    policy = _make(spec, name, arg)
+    if rule is not None:
+        policy.hover = rule
+        policy.name = spec
+    return policy
+
+
+def _make(spec: str, name: str, arg: str):
     if name == "random" and not arg:
         return RandomPolicy()
     if name == "lawnmower" and not arg:
         return LawnmowerPolicy()
     if name == "frontier" and not arg:
         return FrontierPolicy()
+    if name == "coordinated" and not arg:
+        return CoordinatedPolicy()
     if name == "oracle" and not arg:
         return OracleBound()
     if name == "la":

@@ -40,8 +40,10 @@ def _points(v: Vehicle) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 def targets_summary(replay: Replay) -> dict:
-    """The targets found in the shape the mission's target writers take."""
+    """The targets found in the shape the mission's target writers take (with the vehicle that found
+    each and, from the recording's `find` events, when: seconds from the search's start)."""
     step = replay.frame_step
+    finds = {tuple(e["cell"]): e for e in replay.events.of("find")} if replay.events is not None else {}
     return {
         "mission": replay.name,
         "targets_found": [
@@ -50,6 +52,8 @@ def targets_summary(replay: Replay) -> dict:
                 "lat": t.lat,
                 "lon": t.lon,
                 "step": int(step[t.frame]) if step is not None else t.frame,
+                "vehicle": t.vehicle,
+                "time_s": finds.get(tuple(t.cell), {}).get("time_s"),
             }
             for t in replay.targets
         ],

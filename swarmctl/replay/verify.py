@@ -166,7 +166,9 @@ def rebuild_policy(mission: dict, model: Path | None = None) -> FieldPolicy:
     elif model is not None:
         raise InputError(f"--model {model}: the recording's policy {spec!r} has no checkpoint; leave --model out")
     try:
-        policy = FieldPolicy(spec, seed=int(mission["seed"]))
+        # recordings from before the hover rules were flown with `first` (a spec's own :hover= wins)
+        policy = FieldPolicy(spec, seed=int(mission["seed"]), hover=str(mission.get("hover", "first")))
+        policy.set_hold(mission.get("hold"))
     except InputError as exc:
         raise InputError(f"cannot verify the recording's policy {mission['policy']!r}: {exc}") from None
     if recorded is not None and policy.weights_sha256 != recorded:
@@ -237,7 +239,7 @@ def judge_network(record: dict, d: _Network, tau: float | None, min_probability:
 
 def _network(policy: DDQLPolicy, beliefs: Beliefs) -> list[_Network]:
     d = policy.decide(beliefs)
-    allowed = allowed_moves(beliefs, policy.hover, policy.mask)[0]
+    allowed = allowed_moves(beliefs, policy.hover, policy.mask, policy.hold)[0]
     draws = Draws(policy.seed, beliefs).deciders(SOFTMAX)[0]
     return [
         _Network(

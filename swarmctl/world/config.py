@@ -10,6 +10,7 @@ from swarmctl.world.beliefs import VARIANT_CHANNELS
 
 SCENARIOS = ("sparse", "cluster")
 CHANNELS = ("ideal", "none", "model", "fixed")
+FINISHES = ("held", "found", "covered")  # when an episode succeeds (WorldConfig.finish)
 MAX_MAP = 4000  # cells per side, as a grid file (swarmctl.geo.defaults.MAX_GRID_SIDE)
 MAX_WINDOW = 256  # the Q-network takes windows of 8..256
 MAX_UAVS = 1000
@@ -47,6 +48,10 @@ class WorldConfig:
     remove_taken: bool = False  # observations: targets others sit on leave the value channel (world.taken)
     variant: str = "venturini2021"  # observation variant: the paper's window, or "global-local-v1" (+ the whole map)
     explore_reward: float = 0.0  # reward per sensing disc of cells a vehicle newly explores (0: the paper's reward)
+    # success (SearchEnv.step; the reward never reads it): "held" the paper's, every vehicle on a target and no
+    # two on one cell; "found" every target in some vehicle's sensing disc so far; "covered" every free cell
+    # 4-connected to a start sensed. found and covered need no target per vehicle (K < U is allowed)
+    finish: str = "held"
 
     def __post_init__(self) -> None:
         self.validate()
@@ -61,6 +66,8 @@ class WorldConfig:
             raise ScenarioError(f"variant {self.variant!r} is unknown: use one of {', '.join(VARIANT_CHANNELS)}")
         if not 0.0 <= self.explore_reward <= 10.0:
             raise ScenarioError(f"explore reward {self.explore_reward} must be a number in [0, 10]")
+        if self.finish not in FINISHES:
+            raise ScenarioError(f"--finish {self.finish!r} is unknown: use one of {', '.join(FINISHES)}")
         if self.scenario not in SCENARIOS:
             raise ScenarioError(f"--scenario {self.scenario!r} is unknown: use one of {', '.join(SCENARIOS)}")
         if not 1 <= m <= MAX_MAP:
@@ -87,9 +94,10 @@ class WorldConfig:
             raise ScenarioError(f"--cell-size {self.cell_size}: must be > 0 and at most {MAX_CELL_SIZE:g} metres")
         if not self.sigma2 > 0:
             raise ScenarioError(f"sigma2 = {self.sigma2}: the value-map spread must be > 0")
-        if self.targets < self.uavs:
+        if self.targets < self.uavs and self.finish == "held":
             raise ScenarioError(
-                f"--targets {self.targets} < --uavs {self.uavs}: success needs a distinct target for every vehicle"
+                f"--targets {self.targets} < --uavs {self.uavs}: success (--finish held) needs a distinct target "
+                "for every vehicle; evaluate with --finish found|covered for fewer targets than vehicles"
             )
         cells = m * m
         # Targets need room for their spacing rule: at most one per 2x2 block in the cluster rule.

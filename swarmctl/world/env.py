@@ -7,8 +7,12 @@
 Semantics (the paper's): a move outside the map or into an obstacle leaves the vehicle
 where it is (nu = 0, penalty theta); vehicles whose post-move cells coincide collide (penalty psi,
 no target reward); a swap is not a collision; a vehicle on a target cell without collision earns
-+1. Success at step t: after the t-th joint move every vehicle is on a target and no two share a
-cell. With `stop_at_success` (test episodes) a successful episode freezes; training episodes run on.
++1. Success at step t >= 1 depends on the finish line `cfg.finish` (the reward never does):
+  held (the paper's): after the t-th joint move every vehicle is on a target and no two share a cell;
+  found: every target has been inside some vehicle's sensing disc by step t (`found_step`, kept under
+    found and covered, holds the step each target was first sensed, 0 for the starts' discs, -1 not yet);
+  covered: every free cell 4-connected to a start cell has been sensed by step t (`covered_fraction`).
+With `stop_at_success` (test episodes) a successful episode freezes; training episodes run on.
 
 Each vehicle has its own knowledge (explored mask, where it believes the others are and whether they
 hover on a target). After every move each vehicle senses the disc of radius zeta around itself and
@@ -33,6 +37,7 @@ from swarmctl.world.config import WorldConfig
 from swarmctl.world.guard import guard_moves
 from swarmctl.world.moves import MOVES, STAY, cell_table, move_table
 from swarmctl.world.observe import build_observations, observe
+from swarmctl.world.paths import reachable_from
 from swarmctl.world.scenario import Scenario, fov_offsets, generate_scenario, value_map
 
 
@@ -118,7 +123,18 @@ class SearchEnv:
         self.duration = np.zeros(b, dtype=np.int64)  # step of success, 0 while running
         self.collisions = np.zeros(b, dtype=np.int64)
         self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC4A7]))
+        finish = self.cfg.finish
+        # found / covered: the union over vehicles of the cells their own discs sensed, kept as it grows (a
+        # few cells per vehicle and step). It equals the union of `explored` under every channel (a received
+        # cell was sensed by its sender), which would cost a pass over B x U x W x H per step.
+        self._sensed = None if finish == "held" else np.zeros((b, self.width * self.height), dtype=bool)
+        self._target_cells = self.targets[..., 0] * self.height + self.targets[..., 1]  # (B, K) flat
+        self.found_step = np.full(self.targets.shape[:2], -1, dtype=np.int64)  # found: step first sensed
+        self._reachable = (
+            reachable_from(~self.obstacles, self.pos).reshape(b, -1) if finish == "covered" else None
+        )  # covered: free cells 4-connected to a start
         self._sense_and_share()
+        self._record_sensing()
         self.last_observations = self.observe() if self.observations else None
         return self.last_observations
 
@@ -153,17 +169,21 @@ class SearchEnv:
         self._hover = on_target & ~(same & self._lower).any(-1)
         reward = (-cfg.theta * (~valid) - cfg.psi * collided + (~collided & on_target)).astype(np.float32)
         any_collision = collided.any(1)
-        success = on_target.all(1) & ~any_collision
 
         self.t += 1
+        fresh = self._fresh_cells() if cfg.explore_reward else None
+        self._sense_and_share()
+        if cfg.finish == "held":
+            success = on_target.all(1) & ~any_collision
+        else:  # found / covered read what the discs sensed on arrival
+            self._record_sensing()
+            success = self._finished()
         running = ~self.done
         self.collisions += any_collision & running
         newly = success & running
         self.duration[newly] = self.t
         if self.stop_at_success:
             self.done |= success
-        fresh = self._fresh_cells() if cfg.explore_reward else None
-        self._sense_and_share()
         if fresh is not None:  # the exploration reward: cells this vehicle's disc newly showed it, in discs
             reward += np.float32(cfg.explore_reward) * fresh / np.float32(len(self._offsets))
         obs = self.last_observations = self.observe() if self.observations else None
@@ -179,6 +199,30 @@ class SearchEnv:
         first = np.ones(disc.shape, dtype=bool)  # each cell counted once (off-map entries repeat the centre)
         first[..., 1:] = cells[..., 1:] != cells[..., :-1]
         return (~np.take_along_axis(seen, order, axis=-1) & first).sum(-1).astype(np.float32)
+
+    # ----- finish lines found / covered ------------------------------------------------------
+    def _record_sensing(self) -> None:
+        """Add the vehicles' current discs to the sensed union; date the targets first sensed now."""
+        if self._sensed is None:
+            return
+        self._sensed[self._bi, self._disc_table[self._cell].reshape(self.batch, -1)] = True
+        new = (self.found_step < 0) & self._sensed[self._bi, self._target_cells]
+        self.found_step[new] = self.t
+
+    def _finished(self) -> np.ndarray:
+        """(B,) bool: the finish line `found` or `covered` is reached."""
+        if self.cfg.finish == "found":
+            return (self.found_step >= 0).all(1)
+        return ~(self._reachable & ~self._sensed).any(1)
+
+    def covered_fraction(self) -> np.ndarray:
+        """(B,) float: the share of the free cells 4-connected to a start that have been sensed (finish
+        `covered` only; 1.0 when there are none)."""
+        if self._reachable is None:
+            raise ValueError("covered_fraction needs a world with finish 'covered'")
+        reachable = self._reachable.sum(1)
+        sensed = (self._reachable & self._sensed).sum(1)
+        return np.where(reachable > 0, sensed / np.maximum(reachable, 1), 1.0)
 
     # ----- knowledge ------------------------------------------------------------------------
     def _sense_and_share(self) -> None:

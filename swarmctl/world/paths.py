@@ -8,17 +8,18 @@ from scipy import ndimage
 UNREACHABLE = np.iinfo(np.int32).max // 2
 
 
-def grid_distances(passable: np.ndarray, sources: np.ndarray) -> np.ndarray:
+def grid_distances(passable: np.ndarray, sources: np.ndarray, limit: int | None = None) -> np.ndarray:
     """BFS distance from the nearest source cell over passable cells, for a stack of maps.
 
-    passable, sources: (N, W, H) bool. Returns (N, W, H) int32, UNREACHABLE where no path exists.
-    Source cells count as passable. Runs one vectorised relaxation per distance layer.
+    passable, sources: (N, W, H) bool. Returns (N, W, H) int32, UNREACHABLE where no path exists
+    (and, with `limit`, beyond `limit` steps: the search stops there). Source cells count as
+    passable. Runs one vectorised relaxation per distance layer.
     """
     dist = np.where(sources, 0, UNREACHABLE).astype(np.int32)
     frontier = sources.copy()
     open_ = passable & ~sources
     d = 0
-    while frontier.any():
+    while frontier.any() and (limit is None or d < limit):
         d += 1
         grown = np.zeros_like(frontier)
         grown[:, 1:, :] |= frontier[:, :-1, :]
@@ -60,3 +61,13 @@ def largest_free_region(blocked: np.ndarray) -> np.ndarray:
         return np.zeros_like(blocked, dtype=bool)
     sizes = np.bincount(labels.ravel())[1:]
     return labels == (1 + int(np.argmax(sizes)))
+
+
+def reachable_from(passable: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """(N, W, H) bool: the passable cells 4-connected over passable cells to one of `cells` (N, S, 2) [x, y]
+    of their map (a cell of `cells` that is not passable reaches nothing); one labelling for the stack."""
+    structure = np.zeros((3, 3, 3), dtype=bool)
+    structure[1] = ndimage.generate_binary_structure(2, 1)  # 4-connected within a map, never across maps
+    labels, _ = ndimage.label(passable, structure)
+    seeds = labels[np.arange(len(labels))[:, None], cells[..., 0], cells[..., 1]]
+    return np.isin(labels, seeds[seeds > 0])
