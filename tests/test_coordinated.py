@@ -118,11 +118,13 @@ def test_a_move_is_a_function_of_the_beliefs_alone_so_any_state_can_be_relabelle
         env.step(student.act(beliefs))
 
 
-def test_coordinated_results_do_not_depend_on_the_batch():
-    cfg = WorldConfig(scenario="cluster", uavs=3, targets=4, obstacles=0.1)
-    a = evaluate(cfg, ["coordinated"], 9, 3, 40, chunk=9, progress=False)[0]
-    b = evaluate(cfg, ["coordinated"], 9, 3, 40, chunk=4, progress=False)[0]
-    assert a["per_episode"] == b["per_episode"]
+@pytest.mark.parametrize("channel", ["ideal", "none"])
+def test_coordinated_results_do_not_depend_on_the_batch(channel):
+    # episodes 5 and 36 of these once tied targets at equal distance, and the batch's padded target
+    # list broke the ties differently in a chunk of 40
+    cfg = WorldConfig(scenario="cluster", uavs=3, targets=4, obstacles=0.1, channel=channel)
+    alone, together = (evaluate(cfg, ["coordinated"], 40, 3, 30, chunk=c, progress=False)[0] for c in (1, 40))
+    assert alone["per_episode"] == together["per_episode"]
 
 
 def test_coordinated_finds_every_target_of_an_open_map():

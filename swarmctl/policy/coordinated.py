@@ -149,12 +149,13 @@ class CoordinatedPolicy:
         slot = np.full((m, n), -1, dtype=np.int64)
         left = None if self.horizon is None else self.horizon - step
         for i in np.flatnonzero(valid.any(1) & searching.any(1)):
-            r, c = bottleneck_assignment(d[i])
+            columns = np.flatnonzero(valid[i])  # this map's targets only: the batch's padding never breaks a tie
+            r, c = bottleneck_assignment(d[i][:, columns])
             if len(r) == 0:
                 continue
-            if not park[i] and (left is None or left > d[i][r, c].max() + self.settings.margin):
+            if not park[i] and (left is None or left > d[i][r, columns[c]].max() + self.settings.margin):
                 continue  # deferred: explore on
-            slot[i, r] = c
+            slot[i, r] = columns[c]
         return slot
 
     def _explore(self, beliefs, hb, dist, explored, targets, pending, goals, has_goal) -> None:

@@ -13,6 +13,10 @@ P_tx = 20 dBm, N0 = -76 dBm and R = 2/3 are the paper's. The paper does not give
 shadowing: we assume n = 2.2 and sigma = 3 dB (typical of Liu et al.'s low-altitude air-to-air
 measurements) and fit the reference loss PL0 so that PER(110 m) = 0.5, the paper's calibration point.
 The expectation over X uses 40-point Gauss-Hermite quadrature. Distances below 1 m are taken as 1 m.
+
+Each message is lost independently, by a draw keyed by (seed, episode, step, sender, receiver) on the
+world's LOSSES stream (swarmctl.world.draws), so an episode loses the same messages whatever batch or
+chunk it runs in.
 """
 
 from __future__ import annotations
@@ -21,6 +25,8 @@ from functools import lru_cache
 
 import numpy as np
 from scipy.optimize import brentq
+
+from swarmctl.world.draws import LOSSES, uniform
 
 P_TX_DBM = 20.0
 NOISE_DBM = -76.0
@@ -70,3 +76,19 @@ class Channel:
         if self.kind == "fixed":
             return np.full_like(d, self.loss)
         return packet_error_probability(d * self.cell_size)
+
+    def lost(self, distance_cells: np.ndarray, seed: int, episodes: np.ndarray, step: int) -> np.ndarray:
+        """(B, receiver, sender) bool: which of the messages sent at `step` are lost, for vehicles
+        `distance_cells` (B, U, U) apart in episodes `episodes` (B,) ids of the world seeded `seed`. Each
+        loss is its own draw keyed by (seed, episode, step, sender, receiver), so it does not depend on
+        the other episodes of the batch. The diagonal (a vehicle's own message) is drawn like the rest:
+        the caller keeps it."""
+        d = np.asarray(distance_cells, dtype=np.float64)
+        b, u = d.shape[0], d.shape[1]
+        if self.kind == "ideal":
+            return np.zeros(d.shape, dtype=bool)
+        if self.kind == "none":
+            return np.ones(d.shape, dtype=bool)
+        senders = np.broadcast_to(np.arange(u), (b, u))
+        draws = uniform(seed, episodes, step, senders, LOSSES, (u,))  # [b, sender, receiver]
+        return draws.transpose(0, 2, 1) < self.loss_probability(d)

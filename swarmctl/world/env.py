@@ -17,9 +17,10 @@ With `stop_at_success` (test episodes) a successful episode freezes; training ep
 Each vehicle has its own knowledge (explored mask, where it believes the others are and whether they
 hover on a target). After every move each vehicle senses the disc of radius zeta around itself and
 broadcasts what it sensed, its position and whether it hovers; the channel decides which receivers
-get it (ideal: all, none: nobody, model/fixed: each message lost independently). Policies see only
-`beliefs()` (swarmctl.world.beliefs), never the hidden targets; `observe()` is the paper's observation
-built from them. With `cfg.guard` the safety guard (swarmctl.world.guard) turns refused moves into
+get it (ideal: all, none: nobody, model/fixed: each message lost independently, by a draw keyed by
+(seed, episode, step, sender, receiver), so the batch never changes which messages are lost). Policies
+see only `beliefs()` (swarmctl.world.beliefs), never the hidden targets; `observe()` is the paper's
+observation built from them. With `cfg.guard` the safety guard (swarmctl.world.guard) turns refused moves into
 "stay" before they are applied, as the controller does.
 """
 
@@ -82,11 +83,12 @@ class SearchEnv:
         if len(episodes) != self.batch:
             raise ScenarioError(f"reset got {len(episodes)} episode indices for a batch of {self.batch}")
         scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in episodes]
-        return self.reset_to(scenarios, seed=seed + 7_919 * (episodes[0] + 1), episodes=episodes)
+        return self.reset_to(scenarios, seed=seed, episodes=episodes)
 
     def reset_to(self, scenarios: list[Scenario], seed: int = 0, episodes=None) -> np.ndarray | None:
         """Start from given scenarios (hand-built cases, real maps). All share one grid size.
-        `episodes`: their ids (default 0..B-1), which key the policies' random draws."""
+        `seed`: the episode seed (as given to reset); `episodes`: their ids (default 0..B-1). The ids key
+        the policies' random draws; seed and ids key the channel's message losses (Channel.lost)."""
         if len(scenarios) != self.batch:
             raise ScenarioError(f"reset_to got {len(scenarios)} scenarios for a batch of {self.batch}")
         self.scenarios = scenarios
@@ -122,7 +124,7 @@ class SearchEnv:
         self.done = np.zeros(b, dtype=bool)
         self.duration = np.zeros(b, dtype=np.int64)  # step of success, 0 while running
         self.collisions = np.zeros(b, dtype=np.int64)
-        self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC4A7]))
+        self.seed = int(seed)  # with the episode ids, keys the channel's losses
         finish = self.cfg.finish
         # found / covered: the union over vehicles of the cells their own discs sensed, kept as it grows (a
         # few cells per vehicle and step). It equals the union of `explored` under every channel (a received
@@ -266,7 +268,7 @@ class SearchEnv:
         if self.channel.kind == "none":
             return eye.copy()
         dist = np.sqrt(((self.pos[:, :, None, :] - self.pos[:, None, :, :]) ** 2).sum(-1))
-        lost = self.rng.random((b, u, u)) < self.channel.loss_probability(dist)
+        lost = self.channel.lost(dist, self.seed, self.episodes, self.t)  # [b, receiver, sender]
         return eye | ~lost
 
     def beliefs(self, batches: np.ndarray | None = None) -> Beliefs:
