@@ -25,7 +25,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from swarmctl.bounds import real, whole, writable_file
+from swarmctl.bounds import MAX_THREADS, real, whole, writable_file
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -349,7 +349,9 @@ def format_figures(results: dict) -> str:
 
 @click.command("bench")
 @click.option("--seconds", type=real(0, 600, above=True), default=2.0, show_default=True, help="Time per measurement.")
-@click.option("--threads", type=whole(1, 256), default=1, show_default=True, help="Torch and onnxruntime CPU threads.")
+@click.option(
+    "--threads", type=whole(1, MAX_THREADS), default=1, show_default=True, help="Torch and onnxruntime CPU threads."
+)
 @click.option("--no-train", is_flag=True, help="Leave out the training throughput (about 10 s).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, path_type=Path), help="Write the figures here.")
 def bench_command(seconds, threads, no_train, json_path):

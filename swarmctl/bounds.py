@@ -32,6 +32,7 @@ MIB = 2**20
 GIB = 2**30
 MEMORY_BUDGET = 8 * GIB  # the largest array set one command may plan (the machines have 24 GiB)
 SEED_MAX = 2**32 - 1
+MAX_THREADS = 256  # --threads of every command (torch and onnxruntime CPU threads)
 MAX_JSON_DEPTH = 64  # GeoJSON and QGroundControl plans nest about 8 deep
 INPUT_MAX_BYTES = 64 * MIB  # an area, a no-fly set, a .plan, a KML file, a summary (a city outline is a few MB)
 BUILDINGS_MAX_BYTES = 512 * MIB  # building footprints (a large city's OpenStreetMap export)

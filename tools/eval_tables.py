@@ -1,4 +1,4 @@
-"""Re-run the evaluations behind the tables of README.md, docs/RESULTS.md and the model cards.
+"""Re-run the evaluations behind the tables of docs/guide.md, docs/RESULTS.md and the model cards.
 
     python tools/eval_tables.py                       # every table (about 20 min on one core)
     python tools/eval_tables.py --only cluster-2uav chicago

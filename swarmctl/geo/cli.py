@@ -13,7 +13,11 @@ from swarmctl.geo.defaults import (
     DEFAULT_CELL,
     DEFAULT_MARGIN,
     DEFAULT_MAX_CELLS,
+    MAX_ALTITUDE_M,
+    MAX_CELL_M,
     MAX_GRID_CELLS,
+    MIN_ALTITUDE_M,
+    MIN_CELL_M,
     UNKNOWN_RULES,
 )
 
@@ -60,10 +64,12 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
     default=None,
     help="GeoJSON building footprints with height or levels.",
 )
-@click.option("--cell", type=real(0.01, 10_000), default=DEFAULT_CELL, show_default=True, help="Cell side in metres.")
+@click.option(
+    "--cell", type=real(MIN_CELL_M, MAX_CELL_M), default=DEFAULT_CELL, show_default=True, help="Cell side in metres."
+)
 @click.option(
     "--altitude",
-    type=real(0.01, 10_000),
+    type=real(MIN_ALTITUDE_M, MAX_ALTITUDE_M),
     default=DEFAULT_ALTITUDE,
     show_default=True,
     help="Flight altitude in metres relative to home.",

@@ -31,13 +31,18 @@ from swarmctl.errors import InputError
 from swarmctl.geo.areas import Area
 from swarmctl.geo.buildings import BuildingRule, BuildingSet
 from swarmctl.geo.defaults import (
+    CIRCLE_SEGMENTS,
     DEFAULT_ALTITUDE,
     DEFAULT_CELL,
     DEFAULT_MAX_CELLS,
     GRID_MAX_BYTES,
+    MAX_ALTITUDE_M,
+    MAX_CELL_M,
     MAX_GRID_CELLS,
     MAX_GRID_SIDE,
     METRES_PER_LEVEL,
+    MIN_ALTITUDE_M,
+    MIN_CELL_M,
 )
 from swarmctl.geo.projection import LocalProjection
 from swarmctl.world.paths import largest_free_region
@@ -46,7 +51,6 @@ GRID_FORMAT = "swarmctl-grid"
 GRID_VERSION = 1
 EXTENT_TOLERANCE = 1e-3  # cells: a bounding box this much over a whole number of cells is not widened
 OVERLAP_EPS = 1e-6  # cell areas: a building overlapping a cell by less only touches it
-CIRCLE_SEGMENTS = 32
 
 
 @dataclass
@@ -231,8 +235,8 @@ class GeoGrid:
             raise InputError(f"{path}: grid file has a non-finite origin, rotation, cell size or altitude; {fix}")
         for key, value, lo, hi in (
             ("rotation_deg", numbers[0], -180.0, 180.0),
-            ("cell_size_m", numbers[1], 0.01, 10_000.0),
-            ("altitude_m", numbers[2], 0.01, 10_000.0),
+            ("cell_size_m", numbers[1], MIN_CELL_M, MAX_CELL_M),
+            ("altitude_m", numbers[2], MIN_ALTITUDE_M, MAX_ALTITUDE_M),
             ("origin", max(abs(v) for v in origin), 0.0, 1e8),
         ):
             if not lo <= value <= hi:

@@ -30,10 +30,10 @@ from shapely.geometry import Polygon
 
 from swarmctl.errors import InputError
 from swarmctl.geo.areas import Area, Circle, build_area
+from swarmctl.geo.defaults import CIRCLE_SEGMENTS
 from swarmctl.geo.projection import LocalProjection
 from swarmctl.geo.readers import json_number, lonlat_ring, make_polygon, read_json, show_json
 
-CIRCLE_SEGMENTS = 32  # per quarter circle when a circle becomes a polygon
 MAX_RADIUS = 1e6  # metres
 PLAN_VERSION = 1  # the file version QGroundControl writes (and the only one it reads)
 PART_VERSIONS = (1, 2)  # the geoFence and mission versions QGroundControl reads

@@ -8,13 +8,22 @@ from pathlib import Path
 
 import click
 
-from swarmctl.bounds import SEED, real, require_memory, whole, writable_file
-from swarmctl.cli_options import require, require_world_memory, world_config, world_options
-from swarmctl.learn.curriculum import CURRICULA, curriculum_side
+from swarmctl.bounds import MAX_THREADS, SEED, require_memory, whole, writable_file
+from swarmctl.cli_options import (
+    field_default,
+    options_from,
+    require,
+    require_world_memory,
+    values_from,
+    world_config,
+    world_options,
+)
+from swarmctl.learn.curriculum import curriculum_side
 from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
+from swarmctl.learn.train_config import MAX_EPISODES, MAX_STEPS, TrainConfig
 from swarmctl.policy.registry import POLICY_HELP
-from swarmctl.world.beliefs import PAPER_VARIANT, VARIANT_CHANNELS
-from swarmctl.world.config import FINISHES
+from swarmctl.world.beliefs import VARIANT_CHANNELS
+from swarmctl.world.config import WorldConfig
 
 
 def format_table(results: list[dict]) -> str:
@@ -41,8 +50,29 @@ def format_table(results: list[dict]) -> str:
     return "\n".join([line(head), line(["-" * w for w in widths]), *map(line, rows)])
 
 
-MAX_STEPS = 100_000  # a test or held-out episode's step limit
-MAX_EPISODES = 10_000_000
+EVAL_WORLD = ("finish",)  # WorldConfig fields that eval sets besides the world's options
+TRAIN_WORLD = ("variant", "explore_reward")  # ... and train
+TRAIN_FIRST = ("episodes",)  # the TrainConfig fields train sets, in the order of its help
+TRAIN_HYPERPARAMETERS = (
+    "exploration",
+    "temperature_start",  # --temperature START END
+    "epsilon_start",  # --epsilon START END
+    "rules",
+    "parallel_envs",
+    "batch_size",
+    "updates_per_step",
+    "lr",
+    "prefill_episodes",
+    "replay_capacity",
+    "target_update_every",
+    "double",  # --plain-target
+    "eval_every",
+    "eval_episodes",
+    "eval_steps",
+    "threads",
+)
+TRAIN_LAST = ("curriculum",)
+TRAIN_RESUME = ("keep_resume",)  # default None on the command line: on with --curriculum or --resume
 
 
 @click.command("eval")
@@ -84,24 +114,16 @@ MAX_EPISODES = 10_000_000
 )
 @click.option(
     "--threads",
-    type=whole(1, 256),
+    type=whole(1, MAX_THREADS),
     default=1,
     show_default=True,
     help="Torch and onnxruntime CPU threads for the policies.",
 )
-@click.option(
-    "--finish",
-    type=click.Choice(FINISHES),
-    default="held",
-    show_default=True,
-    help="When an episode succeeds: held (the paper's: every vehicle on a target of its own), found (every "
-    "target inside some vehicle's sensing disc) or covered (every free cell reachable from the starts "
-    "sensed). found and covered accept fewer targets than vehicles; the oracle bound is for held only.",
-)
+@options_from(WorldConfig, EVAL_WORLD)
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on a terminal.")
-def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, threads, finish, progress, **kwargs):
+def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, threads, progress, **kwargs):
     """Evaluate policies: success rate, mean episode duration, duration CDF, against the oracle bound."""
-    cfg = world_config(kwargs, finish=finish)
+    cfg = world_config(kwargs, **values_from(WorldConfig, kwargs, EVAL_WORLD))
     from swarmctl.policy.threads import set_inference_threads
 
     set_inference_threads(threads)
@@ -134,7 +156,7 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
 
 @click.command("train")
 @world_options
-@click.option("--episodes", type=whole(1, MAX_EPISODES), default=3000, show_default=True, help="Training episodes N_e.")
+@options_from(TrainConfig, TRAIN_FIRST)
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed: same seed, same machine, same model.")
 @click.option(
     "--out",
@@ -146,142 +168,40 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
     "--init", type=click.Path(dir_okay=False, path_type=Path), help="Start from this checkpoint (transfer learning)."
 )
 @click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True)
-@click.option("--exploration", type=click.Choice(["softmax", "egreedy"]), default="softmax", show_default=True)
-@click.option(
-    "--temperature",
-    nargs=2,
-    type=real(0, 1000, above=True),
-    default=(1.0, 0.1),
-    show_default=True,
-    metavar="START END",
-    help="Softmax exploration temperature, annealed linearly over the run.",
-)
-@click.option(
-    "--epsilon",
-    nargs=2,
-    type=real(0, 1),
-    default=(1.0, 0.0),
-    show_default=True,
-    metavar="START END",
-    help="Epsilon-greedy exploration, annealed linearly over the run.",
-)
-@click.option(
-    "--rules/--no-rules",
-    default=False,
-    show_default=True,
-    help="Explore and evaluate under the deployment rules of ddql:PATH (hover on a free target, no move "
-    "off the map or into a known obstacle); --no-rules is the paper.",
-)
-@click.option("--parallel", type=whole(1, 4096), default=16, show_default=True, help="Episodes stepped together.")
-@click.option("--batch-size", type=whole(1, 65536), default=64, show_default=True)
-@click.option(
-    "--updates-per-step",
-    type=real(0, 64, above=True),
-    default=1.0,
-    show_default=True,
-    help="Gradient steps per joint step of the parallel episodes.",
-)
-@click.option("--lr", type=real(0, 1, above=True), default=5e-4, show_default=True, help="RAdam learning rate.")
-@click.option(
-    "--prefill", type=whole(0, 1_000_000), default=1000, show_default=True, help="Random episodes in the replay first."
-)
-@click.option("--replay", "replay_capacity", type=whole(1), default=100_000, show_default=True, help="Replay capacity.")
-@click.option(
-    "--target-every", type=whole(1, 10**9), default=500, show_default=True, help="n_q: steps between target copies."
-)
-@click.option("--plain-target", is_flag=True, help="Use the plain target-network target, not double DQN.")
-@click.option(
-    "--eval-every", type=whole(1, MAX_EPISODES), default=250, show_default=True, help="Episodes between evaluations."
-)
-@click.option("--eval-episodes", type=whole(1, 1_000_000), default=200, show_default=True)
-@click.option(
-    "--eval-steps",
-    type=whole(1, MAX_STEPS),
-    default=40,
-    show_default=True,
-    help="Step limit of the held-out episodes (the paper: 40 on 20 x 20, 100 on big maps).",
-)
-@click.option("--threads", type=whole(1, 256), default=2, show_default=True, help="Torch CPU threads.")
-@click.option(
-    "--variant",
-    type=click.Choice(sorted(VARIANT_CHANNELS)),
-    default=PAPER_VARIANT,
-    show_default=True,
-    help="Observation and network: the paper's window, or global-local-v1 (the window + the whole map pooled).",
-)
-@click.option(
-    "--explore-reward",
-    type=real(0.0, 10.0),
-    default=0.0,
-    show_default=True,
-    help="Reward per sensing disc of cells a vehicle newly explores (0: the paper's reward).",
-)
-@click.option(
-    "--curriculum",
-    type=click.Choice(sorted(CURRICULA)),
-    default=None,
-    help="Train on many worlds, small maps to large (swarmctl.learn.curriculum); the world options set "
-    "only the observation (window, fov, rho) then.",
-)
+@options_from(TrainConfig, TRAIN_HYPERPARAMETERS)
+@options_from(WorldConfig, TRAIN_WORLD)
+@options_from(TrainConfig, TRAIN_LAST)
 @click.option(
     "--resume",
     is_flag=True,
     help="Continue the stopped run whose checkpoint is --out (its networks, optimiser, replay and random "
     "states); give the run's own options.",
 )
-@click.option(
-    "--keep-resume/--no-keep-resume",
-    default=None,
-    help="At every evaluation save what --resume needs (the replay memory beside --out as NAME.replay.pt). "
-    "Default: on with --curriculum or --resume.",
-)
+@options_from(TrainConfig, TRAIN_RESUME, overrides={"keep_resume": {"default": None}})
 @click.option("--progress/--no-progress", default=True)
-def train_command(
-    episodes,
-    seed,
-    out,
-    init,
-    device,
-    exploration,
-    temperature,
-    epsilon,
-    rules,
-    parallel,
-    batch_size,
-    updates_per_step,
-    lr,
-    prefill,
-    replay_capacity,
-    target_every,
-    plain_target,
-    eval_every,
-    eval_episodes,
-    eval_steps,
-    threads,
-    variant,
-    explore_reward,
-    curriculum,
-    resume,
-    keep_resume,
-    progress,
-    **kwargs,
-):
+def train_command(seed, out, init, device, resume, progress, **kwargs):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
     import torch
 
-    from swarmctl.learn.ddql import TrainConfig, train
+    from swarmctl.learn.ddql import train
 
-    world = replace(world_config(kwargs), variant=variant, explore_reward=explore_reward)
+    settings = values_from(TrainConfig, kwargs, TRAIN_FIRST + TRAIN_HYPERPARAMETERS + TRAIN_LAST + TRAIN_RESUME)
+    world = world_config(kwargs, **values_from(WorldConfig, kwargs, TRAIN_WORLD))
+    replay_capacity, batch_size = settings["replay_capacity"], settings["batch_size"]
+    curriculum = settings["curriculum"]
+    if settings["keep_resume"] is None:
+        settings["keep_resume"] = bool(curriculum or resume)
     require(not resume or out.is_file(), f"--resume: {out} does not exist; give the --out of the stopped run")
     require(replay_capacity >= batch_size, f"--replay {replay_capacity} must hold at least one batch ({batch_size})")
     require(world.window >= 8, f"--window {world.window}: the network needs F >= 8")
-    obs_floats = VARIANT_CHANNELS[variant] * world.window**2
+    obs_floats = VARIANT_CHANNELS[world.variant] * world.window**2
     require_memory(
         replay_capacity * (2 * 2 * obs_floats + 12),  # o and o' as float16, the action and the reward
         f"--replay {replay_capacity} samples of {obs_floats:,}-value observations",
-        "give a smaller --replay (the paper's is 100000)",
+        f"give a smaller --replay (the paper's is {field_default(TrainConfig, 'replay_capacity')})",
     )
-    busiest = max(parallel, min(prefill, 100), eval_episodes)  # the largest batch of episodes stepped at once
+    # the largest batch of episodes stepped at once
+    busiest = max(settings["parallel_envs"], min(settings["prefill_episodes"], 100), settings["eval_episodes"])
     biggest = replace(world, map_size=max(world.map_size, curriculum_side(curriculum))) if curriculum else world
     require_world_memory(biggest, busiest, f"{busiest} parallel or held-out episodes at M={biggest.map_size}")
     if init is not None:
@@ -291,29 +211,7 @@ def train_command(
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
     require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
-    cfg = TrainConfig(
-        episodes=episodes,
-        parallel_envs=parallel,
-        batch_size=batch_size,
-        updates_per_step=updates_per_step,
-        lr=lr,
-        prefill_episodes=prefill,
-        replay_capacity=replay_capacity,
-        target_update_every=target_every,
-        double=not plain_target,
-        exploration=exploration,
-        rules=rules,
-        temperature_start=temperature[0],
-        temperature_end=temperature[1],
-        epsilon_start=epsilon[0],
-        epsilon_end=epsilon[1],
-        eval_every=eval_every,
-        eval_episodes=eval_episodes,
-        eval_steps=eval_steps,
-        threads=threads,
-        curriculum=curriculum,
-        keep_resume=bool(curriculum or resume) if keep_resume is None else keep_resume,
-    )
+    cfg = TrainConfig(**settings)
     stop = _stop_on_signals()
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress, resume=resume, stop=stop)
     if meta.get("stopped"):

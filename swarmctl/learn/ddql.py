@@ -4,7 +4,8 @@ One Q-network shared by every vehicle, one replay memory fed by every vehicle of
 double Q-learning with a target network copied every `target_update_every` gradient steps, RAdam,
 a replay prefilled with random-policy episodes, training episodes alternating 50 and 150 steps, and
 softmax (temperature) or epsilon-greedy exploration annealed over training. The end of a training
-episode is a truncation: targets always bootstrap. Every hyperparameter is a TrainConfig field.
+episode is a truncation: targets always bootstrap. Every hyperparameter is a TrainConfig field
+(swarmctl.learn.train_config, where `swarmctl train` reads its options' defaults from).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from swarmctl.errors import InputError, ScenarioError
 from swarmctl.learn.curriculum import CURRICULA, Curriculum, held_out_worlds
 from swarmctl.learn.kernels import fuse_conv_relu, keep_freed_memory, twin_forward
 from swarmctl.learn.replay import ReplayMemory
+from swarmctl.learn.train_config import TrainConfig
 from swarmctl.policy.base import allowed_moves, softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, model_reference, save_checkpoint
 from swarmctl.policy.qnet import QNetwork, make_network
@@ -37,46 +39,6 @@ from swarmctl.world.env import SearchEnv
 TRAIN_EPISODE_OFFSET = 1_000_000_000  # training episodes never overlap evaluation episodes
 PREFILL_EPISODE_OFFSET = 2_000_000_000
 LAYOUT = torch.channels_last  # the training networks' memory format
-
-
-@dataclass
-class TrainConfig:
-    episodes: int = 3000  # N_e training episodes (the paper's longest run)
-    parallel_envs: int = 16  # episodes stepped together; P * U samples per joint step
-    episode_lengths: tuple[int, int] = (50, 150)  # alternating training-episode lengths (paper)
-    prefill_episodes: int = 1000  # random-policy episodes in the replay before training (paper)
-    replay_capacity: int = 100_000  # samples (vehicle transitions)
-    batch_size: int = 64
-    updates_per_step: float = 1.0  # gradient steps per joint step of the P parallel episodes
-    lr: float = 5e-4  # RAdam learning rate
-    gamma: float = 0.9  # discount (paper)
-    target_update_every: int = 500  # n_q, gradient steps between target-network copies
-    double: bool = True  # double DQN target; False = plain target-network target
-    huber: bool = True  # Huber (smooth L1) loss; False = MSE
-    max_grad_norm: float = 10.0
-    exploration: str = "softmax"  # softmax | egreedy
-    rules: bool = False  # act under the deployment rules (hover on a free target, no move off the map or into a
-    #                      known obstacle) while exploring and in the held-out evaluation; False = the paper
-    temperature_start: float = 1.0  # softmax temperature, annealed linearly ...
-    temperature_end: float = 0.1  # ... to the test-time tau
-    epsilon_start: float = 1.0  # epsilon-greedy, annealed linearly ...
-    epsilon_end: float = 0.0  # ... to 0 by the end (paper)
-    eval_every: int = 250  # episodes between held-out evaluations
-    eval_episodes: int = 200
-    eval_seed: int = 2026  # held-out evaluation episodes (the README tables use seed 0)
-    eval_steps: int = 40
-    eval_tau: float = 0.1
-    snapshots: tuple[int, ...] = ()  # episode counts at which a copy is kept as NAME.epN.pt (learning curves)
-    curriculum: str | None = None  # train on many worlds (learn.curriculum.CURRICULA), None = the one given
-    keep_resume: bool = False  # at every evaluation, save what --resume needs (the replay too: NAME.replay.pt)
-    threads: int = 2  # torch CPU threads
-    extra: dict = field(default_factory=dict)
-
-    def exploration_value(self, progress: float) -> float:
-        """Temperature (softmax) or epsilon (egreedy) at training progress in [0, 1]."""
-        if self.exploration == "softmax":
-            return self.temperature_start + (self.temperature_end - self.temperature_start) * progress
-        return self.epsilon_start + (self.epsilon_end - self.epsilon_start) * progress
 
 
 def explore(

@@ -17,6 +17,16 @@ from dataclasses import dataclass, field, replace
 MARGIN = 2.0  # a timeout is MARGIN x the physics ...
 SLACK_S = 5.0  # ... plus this many seconds
 
+# Two heights above home that tell a flying vehicle from one on the ground, for two uses that err on
+# opposite sides. Counting the distance flown, a stretch counts once either end is AIRBORNE_M high or
+# higher: low, so that the whole climb and descent count and only the noise of a vehicle standing on
+# the ground does not (a stretch counted in error adds that noise, centimetres). Taking a vehicle back
+# after a link loss (mission.launch.rejoin), an armed vehicle higher than RESUME_ABOVE_M is resumed in
+# the air, else it takes off again: higher, so that a landed vehicle whose altitude reads somewhat high
+# (barometer drift) still gets the take-off a resume would never give it.
+AIRBORNE_M = 0.5  # the odometer (Vehicle.distance_flown_m) and the replay's distance flown
+RESUME_ABOVE_M = 1.0  # rejoin: resume in the air above this, take off again below
+
 
 def timeout_for(physics_s: float) -> float:
     """The timeout of something the physics says takes `physics_s` seconds."""

@@ -66,6 +66,7 @@ _UNSIGNED_OK = {MAV.MAVLINK_MSG_ID_RADIO_STATUS}
 _RADIO_STATUS = MAV.MAVLINK_MSG_ID_RADIO_STATUS
 _HEARTBEAT = MAV.MAVLINK_MSG_ID_HEARTBEAT
 EVENTS_KEEP = 1000  # link events kept in MavlinkLink.events (the oldest go)
+LOST_AFTER_S = 3.0  # a vehicle silent (no heartbeat) this long is lost (MavlinkLink's lost_after, the replay's)
 
 # Signing link ids of the open links of this process: each signs as a stream of its own.
 _link_ids: dict[int, object] = {}
@@ -163,7 +164,7 @@ class MavlinkLink:
         accept_unsigned: bool = False,
         heartbeat_type: int = MAV.MAV_TYPE_GCS,
         heartbeat_period: float = 1.0,
-        lost_after: float = 3.0,
+        lost_after: float = LOST_AFTER_S,
         link_id: int | None = None,
         expect: Iterable[int] = (),
     ):

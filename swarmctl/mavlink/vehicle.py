@@ -2,6 +2,13 @@
 
 Every method is a coroutine on the controller's asyncio loop (see network.py for the concurrency model),
 so many vehicles are flown at once with asyncio.gather / TaskGroup and a slow vehicle blocks only itself.
+
+The command flows both firmwares share are written once here, as template methods: `wait_ready` (the
+"waiting for ..." reports and the NotReady that names the last reason), `arm` (retried while the
+autopilot says "not ready yet"), `arm_and_takeoff` (the climb check) and `upload_fence`. A driver
+(autopilots/ardupilot.py, autopilots/px4.py) fills in only how its firmware is asked (`_send_arm`,
+`_take_off`, `_send_fence`, ...) and what its messages mean (`not_ready`); the facts are in its
+description (autopilots/descriptions.py).
 """
 
 from __future__ import annotations
@@ -17,12 +24,10 @@ from typing import Any, ClassVar
 
 from swarmctl.mavlink.autopilots.base import Autopilot
 from swarmctl.mavlink.codec import EARTH_RADIUS_M, distance_m
-from swarmctl.mavlink.errors import MavlinkError, WaitTimeout
-from swarmctl.mavlink.limits import FlightLimits
+from swarmctl.mavlink.errors import CommandRejected, MavlinkError, NotReady, WaitTimeout
+from swarmctl.mavlink.limits import AIRBORNE_M, FlightLimits
 
 log = logging.getLogger(__name__)
-
-AIRBORNE_M = 0.5  # the odometer counts a stretch flown once either end is this high above home
 
 
 @dataclass(frozen=True)
@@ -123,6 +128,33 @@ def _time_out(waiting: asyncio.Future) -> None:
         waiting.set_result(False)
 
 
+class ReadyWait:
+    """One `wait_ready`, as far as it has gone: what its `report` was told and why the vehicle is not
+    ready yet. The driver's `_towards_ready` step reads and updates it."""
+
+    def __init__(self, report: Callable[[str], None] | None, started: float) -> None:
+        self.report = report
+        self.heard = started  # the vehicle's texts up to this time have been reported
+        self.refused = 0.0  # when the vehicle last refused what the driver asked of it on the way (a mode)
+        self.reason = ""  # the last reason the vehicle gave for not being ready
+        self.waiting = ""  # "waiting for ...": what is missing, as last reported
+
+    def say(self, text: str) -> None:
+        if self.report is not None:
+            self.report(text)
+
+    def lacking(self, missing: list[str]) -> None:
+        """Report what is missing, when it is not what was reported last."""
+        text = "waiting for " + ", ".join(missing)
+        if text != self.waiting:
+            self.waiting = text
+            self.say(text)
+
+    def why(self) -> str:
+        """What NotReady says: the last reason (if any) and what was still missing."""
+        return f"{self.reason} ({self.waiting})" if self.reason else self.waiting
+
+
 class Vehicle(abc.ABC):
     """A vehicle the controller commands. Implemented by ArduPilotVehicle and PX4Vehicle."""
 
@@ -133,6 +165,9 @@ class Vehicle(abc.ABC):
     _limits: FlightLimits | None = None
     _reached_memo: tuple[Position, Target, float, bool] | None = None  # see `reached`
     fix_waker: Waker | None = None  # set at every position report while a flight waits for one
+    arm_retry_period: float = 1.0  # seconds between arming attempts the autopilot refused as not ready
+    armed_report: ClassVar[str]  # what says the vehicle is armed, for a timeout waiting for it
+    takeoff_attempts: ClassVar[int] = 1  # arm and take-off sent again after a disarm on the ground
 
     def _position_reported(self) -> None:
         """The driver has a new position report: wake whatever waits for one (swarmctl.mission.flight),
@@ -162,12 +197,40 @@ class Vehicle(abc.ABC):
     async def connect(self, timeout: float = 15.0) -> None:
         """Wait for the vehicle's heartbeat and ask it for the telemetry the controller needs."""
 
-    @abc.abstractmethod
     async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
         """Wait until the vehicle can arm in the mode swarmctl flies it in (position, home, its own
-        readiness reports). `report(text)` is called with what the vehicle says meanwhile (its
-        STATUSTEXTs) and with what is still missing whenever that changes. NotReady (a WaitTimeout)
-        after `timeout` names the last reason."""
+        readiness reports: `not_ready` is empty). Each round the driver's `_towards_ready` step runs
+        first (ArduPilot: GUIDED, its STATUSTEXTs). `report(text)` is called with what the vehicle says
+        meanwhile and with what is still missing ("waiting for ...") whenever that changes. NotReady (a
+        WaitTimeout) after `timeout` names the last reason and what was still missing."""
+        started = time.monotonic()
+        deadline = started + timeout
+        await self._await_vehicle(timeout)
+        wait = ReadyWait(report, started)
+        while True:
+            await self._towards_ready(wait)
+            missing = self.not_ready()
+            if not missing:
+                return
+            wait.lacking(missing)
+            if time.monotonic() > deadline:
+                raise NotReady(self.name, timeout, wait.why())
+            await self._await_news()
+
+    @abc.abstractmethod
+    def not_ready(self) -> list[str]:
+        """What the vehicle still lacks to arm in the mode swarmctl flies it in (empty: ready)."""
+
+    async def _await_vehicle(self, timeout: float) -> None:  # noqa: B027 - an optional hook
+        """Hook: wait until the vehicle is heard at all, before `wait_ready` looks at it."""
+
+    async def _towards_ready(self, wait: ReadyWait) -> None:  # noqa: B027 - an optional hook
+        """Hook: one round of what the driver does itself on the way to ready (ask for a mode, report
+        the vehicle's texts into `wait`)."""
+
+    async def _await_news(self) -> None:
+        """Hook: sleep until there may be news of the vehicle's readiness."""
+        await asyncio.sleep(0.05)
 
     @abc.abstractmethod
     async def close(self) -> None:
@@ -214,14 +277,71 @@ class Vehicle(abc.ABC):
     async def set_mode(self, mode: str) -> None:
         """Switch flight mode by name (GUIDED, LAND, RTL, ... for ArduPilot; HOLD, LAND, RTL for PX4)."""
 
-    @abc.abstractmethod
     async def arm(self, timeout: float = 30.0) -> None:
-        """Arm, retrying while the autopilot still refuses (not ready yet) until timeout."""
+        """Arm, retrying every `arm_retry_period` while the autopilot still refuses with what its
+        description calls "not ready yet" (`retries_arm`) until timeout; then wait for the armed state."""
+        info = self.autopilot_info
+        assert info is not None
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                await self._send_arm()
+                break
+            except CommandRejected as exc:
+                if not info.retries_arm(exc.result) or time.monotonic() > deadline:
+                    raise
+                self._log.info("%s: arming refused (%s), retrying", self.name, self._refusal(exc))
+                await asyncio.sleep(self.arm_retry_period)
+        await self._poll(lambda: self.armed, 3.0, self.armed_report)
 
     @abc.abstractmethod
+    async def _send_arm(self) -> None:
+        """Ask the autopilot to arm, once (CommandRejected when it refuses)."""
+
+    def _refusal(self, exc: CommandRejected) -> str:
+        """How a refused arm is logged: the autopilot's reason, else its result."""
+        return exc.reason or exc.result
+
     async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
         """Ready, arm, take off to rel_alt (metres above home, the mission's altitude) and return once it
-        is (nearly) reached."""
+        is (nearly) reached, 95 %. With `takeoff_attempts` above 1, a vehicle that disarms on the ground
+        after the take-off is armed and sent off again, up to that many times."""
+        start = time.monotonic()
+        left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
+        await self.wait_ready(left())
+        await self._prepare_takeoff(rel_alt, left)
+        climbed = lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt  # noqa: E731
+        again = self.takeoff_attempts > 1
+        dropped = lambda: again and not self.armed and (p := self.position) is not None and p.rel_alt < 1.0  # noqa: E731
+        for attempt in range(1, self.takeoff_attempts + 1):
+            await self.arm(min(30.0, left()))
+            await self._take_off(rel_alt, left)
+            await self._poll(lambda: climbed() or dropped(), left(), f"take-off altitude {rel_alt:g} m")
+            if climbed():
+                return
+            self._log.warning(
+                "%s: disarmed on the ground after take-off %d of %d", self.name, attempt, self.takeoff_attempts
+            )
+        what = f"take-off altitude {rel_alt:g} m ({self.takeoff_attempts} take-offs, each disarmed on the ground)"
+        raise WaitTimeout(what, self.name, time.monotonic() - start, self._state_text())
+
+    async def _prepare_takeoff(self, rel_alt: float, left: Callable[[], float]) -> None:  # noqa: B027 - a hook
+        """Hook: what the vehicle needs before it is armed for a take-off to rel_alt (`left()`: the
+        seconds left of the take-off's timeout)."""
+
+    @abc.abstractmethod
+    async def _take_off(self, rel_alt: float, left: Callable[[], float]) -> None:
+        """Send the take-off to rel_alt (the vehicle is armed); `target` is above the take-off point
+        once this returns (see `_aim_above`)."""
+
+    async def _aim_above(self, rel_alt: float, timeout: float, when: str) -> None:
+        """Make the target rel_alt above the vehicle's position, once a real position report is there
+        (`when`: "before take-off", "after take-off", for the errors)."""
+        await self._poll(lambda: self.position is not None, timeout, f"a position report {when}")
+        pos = self.position
+        if pos is None:  # _poll returned on it: for the type checker
+            raise MavlinkError(f"{self.name}: no position report {when}")
+        self.target = Target(pos.lat, pos.lon, rel_alt)
 
     @abc.abstractmethod
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
@@ -245,10 +365,21 @@ class Vehicle(abc.ABC):
         """Take an airborne vehicle back from its own failsafe (RTL, LAND) and hold it where it is, so
         that position targets steer it again."""
 
-    @abc.abstractmethod
     async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
         """Make polygon ((lat, lon) vertices, degrees) the vehicle's inclusion geofence and turn the
-        fence on; the autopilot then refuses targets outside it and acts on a breach by itself."""
+        fence on; the autopilot then refuses targets outside it and acts on a breach by itself. The
+        vertices are checked (`fence_vertices`, ValueError), then the vehicle's own fence settings
+        (`_check_fence_settings`), before anything is sent (`_send_fence`)."""
+        vertices = fence_vertices(polygon)
+        await self._check_fence_settings(vertices)
+        await self._send_fence(vertices)
+
+    async def _check_fence_settings(self, vertices: list[tuple[float, float]]) -> None:  # noqa: B027 - a hook
+        """Hook: refuse (MavlinkError) a fence the vehicle's own settings would spoil."""
+
+    @abc.abstractmethod
+    async def _send_fence(self, vertices: list[tuple[float, float]]) -> None:
+        """Upload the checked vertices as the inclusion fence and turn it on."""
 
     # --- state ----------------------------------------------------------------------------------------
     @property
@@ -325,6 +456,11 @@ class Vehicle(abc.ABC):
 
     async def _on_wait(self) -> None:  # noqa: B027 - an optional hook, empty by default
         """Hook run while waiting (ArduPilot resends its position target here)."""
+
+    @property
+    def _log(self) -> logging.Logger:
+        """The driver's own logger (its module's), for the lines the shared flows log."""
+        return logging.getLogger(type(self).__module__)
 
     def _state_text(self) -> str:
         pos = self.position

@@ -27,8 +27,6 @@ if TYPE_CHECKING:
     from swarmctl.mission.detector import SensorFeed
     from swarmctl.mission.spec import VehicleSpec
 
-AIRBORNE_M = 1.0  # a vehicle this high above home (or higher) is flying, not landed
-
 
 class State(StrEnum):
     """An agent's state; the value is what the recording writes."""

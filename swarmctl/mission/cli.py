@@ -17,8 +17,8 @@ import click
 import swarmctl
 from swarmctl.bounds import SEED, new_recording_folder, real, whole
 from swarmctl.errors import EXIT_FAILED, InputError
-from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, FINISH_RULES, ON_FIND, MissionTable, TimingTable
-from swarmctl.world.config import CHANNELS
+from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, ON_FIND, MissionTable, TimingTable
+from swarmctl.world.config import CHANNELS, FINISHES
 
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
@@ -140,7 +140,7 @@ def view_options(func):
 )
 @click.option(
     "--finish",
-    type=click.Choice(FINISH_RULES),
+    type=click.Choice(FINISHES),
     default=None,
     help="When the search is complete: held (N targets hovered on), found (N targets found; N unknown: the "
     "area covered) or covered (every reachable cell explored). Default: the --mission file's, else held.",

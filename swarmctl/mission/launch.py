@@ -21,8 +21,9 @@ from typing import TYPE_CHECKING, Any
 from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_contains
 from swarmctl.mavlink.errors import MavlinkError
+from swarmctl.mavlink.limits import RESUME_ABOVE_M
 from swarmctl.mission import timeouts
-from swarmctl.mission.agent import AIRBORNE_M, Agent, State
+from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.flight import fly, nearest_free, sense_and_share
 
 if TYPE_CHECKING:
@@ -180,7 +181,7 @@ async def rejoin(c: Controller, a: Agent) -> None:
     timing = c.plan.spec.timing
     try:
         pos = a.vehicle.position
-        if a.vehicle.armed and pos is not None and pos.rel_alt > AIRBORNE_M:
+        if a.vehicle.armed and pos is not None and pos.rel_alt > RESUME_ABOVE_M:
             # still in the air, perhaps returning or landing on its failsafe: take it back there
             await a.vehicle.resume()
         else:

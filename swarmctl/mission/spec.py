@@ -56,10 +56,10 @@ from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
 from swarmctl.mavlink.autopilots import AUTOPILOT_NAMES
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_table, replace_between, table_of_key
+from swarmctl.world.config import FINISHES  # when the search is complete (swarmctl.mission.finish)
 
 MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
 END_ACTIONS = ("land", "rtl", "hover")
-FINISH_RULES = ("held", "found", "covered")  # when the search is complete (swarmctl.mission.finish)
 ON_FIND = ("hold", "mark")  # what a vehicle does at a target it finds
 MAX_EXPECTED_TARGETS = 1 << 15  # a target a cell at most, and no grid a mission flies has more cells
 PUSH_UP_TO = 12  # knowledge push is on for swarms of up to this many vehicles (see [knowledge] push)
@@ -285,7 +285,7 @@ class MissionTable(Table):
         default_text="none",
     )
     fence: bool = setting(False, "upload the area's boundary (plus one cell) to every vehicle as its geofence")
-    finish: Literal[FINISH_RULES] = setting(
+    finish: Literal[FINISHES] = setting(
         "held",
         "when the search is complete: held (expected_targets distinct targets hovered on by live vehicles), "
         "found (expected_targets targets known to the swarm; unknown: the area covered) or covered (every "

@@ -33,13 +33,12 @@ from scipy.optimize import linear_sum_assignment
 
 from swarmctl.policy.draws import CLAIMS, NAVIGATE, uniform
 from swarmctl.policy.hover import DEFER, FIRST, NO, park_allowed
-from swarmctl.policy.planners import deciders_part, distances_from, target_lists
+from swarmctl.policy.planners import CHUNK_CELLS, deciders_part, distances_from, target_lists
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.paths import UNREACHABLE, grid_distances
 from swarmctl.world.scenario import fov_offsets
 
-_CHUNK_CELLS = 8_000_000  # distance-map cells computed at once (bounds memory on big maps and swarms)
 _FAR = 1e9  # the cost of an unreachable target in the assignment
 
 
@@ -211,7 +210,7 @@ class CoordinatedPolicy:
         src[np.arange(len(mi)), goals[mi, ni, 0], goals[mi, ni, 1]] = True
         pas = passable[mi]
         to_goal = np.full((m, n, w, h), UNREACHABLE, dtype=np.int32)
-        per = max(1, _CHUNK_CELLS // max(1, w * h))
+        per = max(1, CHUNK_CELLS // max(1, w * h))
         for i in range(0, len(mi), per):
             part = slice(i, i + per)
             reach = trip[part][trip[part] < UNREACHABLE]

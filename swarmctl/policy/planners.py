@@ -24,7 +24,7 @@ from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.paths import UNREACHABLE, grid_distances, step_towards
 
-_CHUNK_CELLS = 8_000_000  # distance-map cells computed at once (bounds memory on big maps and swarms)
+CHUNK_CELLS = 8_000_000  # distance-map cells computed at once (bounds memory on big maps and swarms)
 
 
 class RandomPolicy:
@@ -145,7 +145,7 @@ def deciders_part(beliefs: Beliefs, plan) -> np.ndarray:
     hb_all, hu_all = np.nonzero(holder == np.arange(u)[None, :])
     row = np.full((b, u), -1, dtype=np.int64)
     row[hb_all, hu_all] = np.arange(len(hb_all))
-    per = max(1, _CHUNK_CELLS // max(1, n * beliefs.width * beliefs.height))
+    per = max(1, CHUNK_CELLS // max(1, n * beliefs.width * beliefs.height))
     chunks = range(0, len(hb_all), per)
     plans = np.concatenate([plan(beliefs, hb_all[i : i + per], hu_all[i : i + per]) for i in chunks])
     return plans[row[np.arange(b)[:, None], holder], beliefs.me]

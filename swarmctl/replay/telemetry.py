@@ -7,7 +7,7 @@ ground stations and companion computers are left out. Per vehicle:
   longitude (no receiver reports one) is skipped and counted (`bad_positions`), never projected;
 - battery from SYS_STATUS.battery_remaining (BATTERY_STATUS when SYS_STATUS never gives it), in %;
 - flight modes from the heartbeats (pymavlink's mode names: ArduPilot by vehicle type, PX4);
-- link: "lost" from the moment heartbeats stop for LOST_AFTER_S (3 s, as swarmctl's link watch), "ok"
+- link: "lost" from the moment heartbeats stop for LOST_AFTER_S (3 s, swarmctl's link watch's), "ok"
   again at the next heartbeat.
 """
 
@@ -20,11 +20,11 @@ import pyproj
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from swarmctl.mavlink.limits import AIRBORNE_M
+from swarmctl.mavlink.network import LOST_AFTER_S
 from swarmctl.replay.tlog import TlogIndex
 
 MAV = mavlink2
-LOST_AFTER_S = 3.0
-AIRBORNE_M = 1.0  # above home: flying (as the controller counts it)
 GEOD = pyproj.Geod(ellps="WGS84")
 POSITION_DT = 0.2  # positions kept: at most 5 per second per vehicle (enough for tracks and distance)
 
@@ -61,8 +61,9 @@ class VehicleTelemetry:
         return out
 
     def distance_m(self) -> float:
-        """Horizontal distance flown (while above AIRBORNE_M), metres."""
-        return path_m(self.lat, self.lon, self.alt > AIRBORNE_M)
+        """Horizontal distance flown, metres: the stretches with an end at least AIRBORNE_M above home,
+        as the controller's odometer counts them (Vehicle.distance_flown_m, which adds the climbs)."""
+        return path_m(self.lat, self.lon, self.alt >= AIRBORNE_M)
 
     def position_at(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(lat, lon, alt) of the last fix at or before each time (NaN before the first)."""

@@ -32,9 +32,9 @@ from typing import Any
 from swarmctl.geo.fence import farthest_metres
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
 from swarmctl.mavlink.codec import from_deg_e7, to_deg_e7
-from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, NotReady, WaitTimeout
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
-from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Odometer, Position, ReadyWait, Target, Vehicle
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +117,7 @@ class ArduPilotVehicle(Vehicle):
     """One ArduCopter (sysid) on a MavlinkLink that may carry other vehicles too."""
 
     autopilot_info = ARDUPILOT
+    armed_report = "the armed flag in HEARTBEAT"
 
     def __init__(
         self,
@@ -321,52 +322,42 @@ class ArduPilotVehicle(Vehicle):
         """The vehicle reports it can arm in GUIDED (see not_ready)."""
         return not self.not_ready()
 
-    async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
-        """GUIDED first (once the autopilot has booted), then wait until the vehicle can arm in it
-        (not_ready() is empty). A refused mode, or one its heartbeat does not report in time, is asked
-        for again a second later. Each STATUSTEXT the vehicle sends meanwhile, and each change of what
-        is missing ("waiting for ..."), goes to report(text). NotReady after `timeout` names the last
-        STATUSTEXT of warning severity or worse (PreArm: ..., Arm: ...) and what was still missing."""
-        started = time.monotonic()
-        deadline = started + timeout
+    async def _await_vehicle(self, timeout: float) -> None:
         await self.link.wait_heartbeat(self.sysid, timeout)
-        peer = self.link.peer(self.sysid)
-        heard, waiting, reason, refused = started, "", "", 0.0
-        guided = ARDUPILOT.custom_mode(ARDUPILOT.command_mode)
-        while True:
-            now = time.monotonic()
-            if self._custom_mode() != guided and not self.lost and not self.booting() and now - refused > 1.0:
-                try:
-                    await self.set_mode(ARDUPILOT.command_mode)
-                except (CommandRejected, WaitTimeout) as exc:  # e.g. firmware that wants a position first
-                    refused = time.monotonic()
-                    if isinstance(exc, CommandRejected):
-                        reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
-                    else:
-                        reason = f"mode {ARDUPILOT.command_mode} accepted but not reported ({self.mode})"
-                    if report is not None:
-                        report(reason + ", asking again")
-            for at, severity, text in list(peer.statustexts):
-                if at > heard:
-                    heard = at
-                    if severity <= _WARNING:
-                        reason = text
-                    if report is not None:
-                        report(text)
-            missing = self.not_ready()
-            if not missing:
-                return
-            now_waiting = "waiting for " + ", ".join(missing)
-            if now_waiting != waiting:
-                waiting = now_waiting
-                if report is not None:
-                    report(waiting)
-            if time.monotonic() > deadline:
-                raise NotReady(self.name, timeout, f"{reason} ({waiting})" if reason else waiting)
+
+    async def _towards_ready(self, wait: ReadyWait) -> None:
+        """GUIDED first (once the autopilot has booted): a refused mode, or one its heartbeat does not
+        report in time, is asked for again a second later. Each STATUSTEXT the vehicle sends goes to the
+        report; the last of warning severity or worse (PreArm: ..., Arm: ...) is the reason NotReady
+        names."""
+        if (
+            self._custom_mode() != ARDUPILOT.custom_mode(ARDUPILOT.command_mode)
+            and not self.lost
+            and not self.booting()
+            and time.monotonic() - wait.refused > 1.0
+        ):
             try:
-                await self.link.wait_message(lambda m: m.get_srcSystem() == self.sysid, 0.2)
-            except TimeoutError:
-                pass
+                await self.set_mode(ARDUPILOT.command_mode)
+            except (CommandRejected, WaitTimeout) as exc:  # e.g. firmware that wants a position first
+                wait.refused = time.monotonic()
+                if isinstance(exc, CommandRejected):
+                    wait.reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
+                else:
+                    wait.reason = f"mode {ARDUPILOT.command_mode} accepted but not reported ({self.mode})"
+                wait.say(wait.reason + ", asking again")
+        for at, severity, text in list(self.link.peer(self.sysid).statustexts):
+            if at > wait.heard:
+                wait.heard = at
+                if severity <= _WARNING:
+                    wait.reason = text
+                wait.say(text)
+
+    async def _await_news(self) -> None:
+        """The vehicle's next message, or 0.2 s."""
+        try:
+            await self.link.wait_message(lambda m: m.get_srcSystem() == self.sysid, 0.2)
+        except TimeoutError:
+            pass
 
     async def set_mode(self, mode: str, timeout: float = 3.0) -> None:
         name = mode.upper()
@@ -375,19 +366,9 @@ class ArduPilotVehicle(Vehicle):
         await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), param2, param3)
         await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
 
-    async def arm(self, timeout: float = 30.0) -> None:
-        """Arm; ArduPilot answers FAILED (and an "Arm: ..." STATUSTEXT) while it cannot, so retry."""
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
-                break
-            except CommandRejected as exc:
-                if not ARDUPILOT.retries_arm(exc.result) or time.monotonic() > deadline:
-                    raise
-                log.info("%s: arming refused (%s), retrying", self.name, exc.reason or exc.result)
-                await asyncio.sleep(1.0)
-        await self._poll(lambda: self.armed, 3.0, "the armed flag in HEARTBEAT")
+    async def _send_arm(self) -> None:
+        # ArduPilot answers FAILED (and an "Arm: ..." STATUSTEXT) while it cannot: `arm` retries
+        await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 1.0)
 
     async def disarm(self) -> None:
         await self._command(MAV.MAV_CMD_COMPONENT_ARM_DISARM, 0.0)
@@ -410,24 +391,11 @@ class ArduPilotVehicle(Vehicle):
             if not (self.armed and pos is not None and pos.rel_alt > 0.3):
                 raise
 
-    async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
-        start = time.monotonic()
-        left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
-        await self.wait_ready(left())  # GUIDED and ready
-        await self.arm(min(30.0, left()))
+    async def _take_off(self, rel_alt: float, left: Callable[[], float]) -> None:
         await self.takeoff(rel_alt)
         # a report of 0, 0 (no position) can come between the ready check and now, from the vehicle or
         # in its name: wait for a real one instead of failing on it
-        await self._poll(lambda: self.position is not None, left(), "a position report after take-off")
-        pos = self.position
-        if pos is None:  # _poll returned on it: for the type checker
-            raise MavlinkError(f"{self.name}: no position report after take-off")
-        self.target = Target(pos.lat, pos.lon, rel_alt)
-        await self._poll(
-            lambda: (p := self.position) is not None and p.rel_alt >= 0.95 * rel_alt,
-            left(),
-            f"take-off altitude {rel_alt:g} m",
-        )
+        await self._aim_above(rel_alt, left(), "after take-off")
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         self.goto_nowait(lat, lon, rel_alt)
@@ -487,12 +455,9 @@ class ArduPilotVehicle(Vehicle):
         self._target_sent = 0.0
         await self.set_mode(ARDUPILOT.command_mode)
 
-    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
-        """Upload polygon as the inclusion fence (mission protocol, mission_type FENCE), then switch the
-        fence on with MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION. First
-        the vehicle's FENCE_TYPE and FENCE_RADIUS are checked (_check_fence_settings)."""
-        vertices = fence_vertices(polygon)
-        await self._check_fence_settings(vertices)
+    async def _send_fence(self, vertices: list[tuple[float, float]]) -> None:
+        """The inclusion fence with the mission protocol (mission_type FENCE), then switched on with
+        MAV_CMD_DO_FENCE_ENABLE. What a breach does is the vehicle's FENCE_ACTION."""
         peer = self.link.peer(self.sysid)
         items = fence_items(self.link.mav, self.sysid, peer.compid, vertices)
         await self._upload(items, MAV.MAV_MISSION_TYPE_FENCE, "the fence upload")

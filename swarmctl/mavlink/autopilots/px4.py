@@ -43,12 +43,11 @@ from swarmctl.mavlink.errors import (
     CommandRejected,
     CommandTimeout,
     MavlinkError,
-    NotReady,
     WaitTimeout,
     WrongAutopilot,
 )
 from swarmctl.mavlink.network import MAV, cancel_tasks
-from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle, fence_vertices
+from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle
 
 log = logging.getLogger(__name__)
 _mavsdk_log_installed = False
@@ -60,7 +59,6 @@ _AUTOPILOT_NAMES = {"PX4": "px4", "ARDUPILOT": "ardupilot"}
 _RESULT_NAMES = {REPOSITION_FRAME_REFUSED: "UNSUPPORTED_MAV_FRAME"}
 _FRAME_NAMES = {0: "GLOBAL", 5: "GLOBAL_INT"}
 _COMMAND_ACK_S, _COMMAND_ATTEMPTS = 1.0, 3  # a COMMAND_INT sent through MavlinkDirect: wait, attempts
-_TAKEOFF_ATTEMPTS = 3  # arm and take-off sent again after a disarm on the ground
 _OUTBOX_MAX = 256  # knowledge frames waiting for MAVSDK; more are dropped (the bus has them all the same)
 
 
@@ -102,6 +100,8 @@ class PX4Vehicle(Vehicle):
     """A PX4 multicopter driven through MAVSDK, behind the same interface as ArduPilotVehicle."""
 
     autopilot_info = PX4
+    armed_report = "the armed state"
+    takeoff_attempts = 3  # arm and take-off sent again after a disarm on the ground
 
     def __init__(
         self,
@@ -297,7 +297,7 @@ class PX4Vehicle(Vehicle):
                 raise CommandTimeout(what, self.name, 0, 0.0) from None
             raise CommandRejected(what, self.name, rname, str(exc)) from None
 
-    def missing(self) -> list[str]:
+    def not_ready(self) -> list[str]:
         """What the vehicle lacks to be flown: a position and home, and MAVSDK's health for the local and
         global position estimates and the home position (empty: ready; arming is retried, not waited for:
         MAVSDK's "armable" was seen never to come on simulators)."""
@@ -309,19 +309,6 @@ class PX4Vehicle(Vehicle):
         )
         known = (("a position", self._position is not None), ("home", self._home is not None), *health)
         return [what for what, ok in known if not ok]
-
-    async def wait_ready(self, timeout: float = 60.0, report: Callable[[str], None] | None = None) -> None:
-        """Position and home known and MAVSDK's health saying so (`missing`); NotReady names what is not."""
-        waiting = ""
-        deadline = time.monotonic() + timeout
-        while lacking := self.missing():
-            if (text := "waiting for " + ", ".join(lacking)) != waiting:
-                waiting = text
-                if report is not None:
-                    report(text)
-            if time.monotonic() > deadline:
-                raise NotReady(self.name, timeout, waiting)
-            await asyncio.sleep(0.05)
 
     async def read_parameter(self, name: str) -> float:
         """A parameter through MAVSDK's param plugin (float, else int)."""
@@ -357,45 +344,24 @@ class PX4Vehicle(Vehicle):
             raise ValueError(f"PX4 mode {mode!r} is not supported here; use one of {', '.join(actions)}")
         await self._call(f"set mode {name}", getattr(self.action, actions[name]))
 
-    async def arm(self, timeout: float = 30.0) -> None:
-        deadline = time.monotonic() + timeout
-        while True:
-            try:
-                await self._call("arm", self.action.arm)
-                break
-            except CommandRejected as exc:
-                if not PX4.retries_arm(exc.result) or time.monotonic() > deadline:
-                    raise
-                log.info("%s: arming refused (%s), retrying", self.name, exc.result)
-                await asyncio.sleep(self.arm_retry_period)
-        await self._poll(lambda: self._armed, 3.0, "the armed state")
+    async def _send_arm(self) -> None:
+        await self._call("arm", self.action.arm)
 
-    async def arm_and_takeoff(self, rel_alt: float, timeout: float = 120.0) -> None:
-        start = time.monotonic()
-        left = lambda: max(1.0, timeout - (time.monotonic() - start))  # noqa: E731
-        await self.wait_ready(left())
+    def _refusal(self, exc: CommandRejected) -> str:
+        return exc.result  # MAVSDK's refusals are logged by their result alone
+
+    async def _prepare_takeoff(self, rel_alt: float, left: Callable[[], float]) -> None:
+        """The take-off altitude is MIS_TAKEOFF_ALT, set and read back; the target is set before arming."""
         await self._call("set_takeoff_altitude", self.action.set_takeoff_altitude, float(rel_alt))
         got = await self._call("get_takeoff_altitude", self.action.get_takeoff_altitude)
         if got is None or abs(float(got) - rel_alt) > 0.1:
             raise MavlinkError(f"{self.name}: take-off altitude reads back as {got}, not {rel_alt:g} m")
-        await self._poll(lambda: self._position is not None, left(), "a position report before take-off")
-        pos = self._position
-        if pos is None:  # _poll returned on it: for the type checker
-            raise MavlinkError(f"{self.name}: no position report before take-off")
-        self.target = Target(pos.lat, pos.lon, rel_alt)
-        climbed = lambda: (p := self._position) is not None and p.rel_alt >= 0.95 * rel_alt  # noqa: E731
+        await self._aim_above(rel_alt, left(), "before take-off")
+
+    async def _take_off(self, rel_alt: float, left: Callable[[], float]) -> None:
         # A loaded SITL sometimes takes the take-off and then disarms on the ground in HOLD (its
-        # pre-flight auto-disarm): arm and send the take-off again rather than wait it out.
-        dropped = lambda: not self._armed and (p := self._position) is not None and p.rel_alt < 1.0  # noqa: E731
-        for attempt in range(1, _TAKEOFF_ATTEMPTS + 1):
-            await self.arm(min(30.0, left()))
-            await self._call("takeoff", self.action.takeoff)
-            await self._poll(lambda: climbed() or dropped(), left(), f"take-off altitude {rel_alt:g} m")
-            if climbed():
-                return
-            log.warning("%s: disarmed on the ground after take-off %d of %d", self.name, attempt, _TAKEOFF_ATTEMPTS)
-        what = f"take-off altitude {rel_alt:g} m ({_TAKEOFF_ATTEMPTS} take-offs, each disarmed on the ground)"
-        raise WaitTimeout(what, self.name, time.monotonic() - start, self._state_text())
+        # pre-flight auto-disarm): `arm_and_takeoff` arms and sends it again (takeoff_attempts)
+        await self._call("takeoff", self.action.takeoff)
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
         home = self._home
@@ -503,12 +469,11 @@ class PX4Vehicle(Vehicle):
         self.target = None
         await self.set_mode(PX4.command_mode)
 
-    async def upload_fence(self, polygon: list[tuple[float, float]]) -> None:
-        """Upload polygon as PX4's inclusion geofence (MAVSDK geofence plugin). PX4 enforces it as its
-        GF_ACTION says (default Hold) and ignores repositions outside it."""
+    async def _send_fence(self, vertices: list[tuple[float, float]]) -> None:
+        """PX4's inclusion geofence through MAVSDK's geofence plugin. PX4 enforces it as its GF_ACTION says
+        (default Hold) and ignores repositions outside it."""
         from mavsdk.asyncio.plugins.geofence import FenceType, GeofenceAsync, GeofenceData, Point, Polygon
 
-        vertices = fence_vertices(polygon)
         if self._system is None:
             raise MavlinkError(f"{self.name}: not connected, cannot upload a fence")
         if self.geofence is None:
