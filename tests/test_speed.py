@@ -1,5 +1,6 @@
-"""The fast paths give the reference's answers: the exported forward, the Python-int draws, eval's
-batch size, the thread setting, the replay memory on a torch device."""
+"""The fast paths give the reference's answers: the torch forward in chunks, the forward's choice, the
+Python-int draws, eval's batch size, the thread setting, the replay memory on a torch device. (The
+forward backends against eager torch: tests/test_fast_paths.py.)"""
 
 import json
 
@@ -13,31 +14,10 @@ from swarmctl.cli import main
 from swarmctl.errors import InputError
 from swarmctl.learn.replay import ReplayMemory
 from swarmctl.policy import draws
-from swarmctl.policy.forward import (
-    SPLIT_ROWS,
-    OneDnnForward,
-    OnnxForward,
-    TorchForward,
-    make_forward,
-    onednn_available,
-    onnx_available,
-)
-from swarmctl.policy.qnet import GlobalLocalQNetwork, QNetwork, forward_flops
+from swarmctl.policy.forward import TorchForward, make_forward, onednn_available, onnx_available
+from swarmctl.policy.qnet import QNetwork, forward_flops
 from swarmctl.policy.threads import ENV_VAR, set_inference_threads, threads_from_env
 from swarmctl.world.moves import MOVES, cell_table, move_table
-
-needs_onnx = pytest.mark.skipif(not onnx_available(), reason="onnxruntime is not installed (pip install '.[onnx]')")
-needs_onednn = pytest.mark.skipif(not onednn_available(), reason="this torch has no oneDNN fused convolution")
-
-
-@needs_onnx
-@pytest.mark.parametrize("rows", [1, 2, 7, 64, 300])
-def test_the_onnx_forward_matches_torch_within_1e5_on_random_observations(rows):
-    torch.manual_seed(rows)
-    net = QNetwork(20)
-    obs = np.random.default_rng(rows).random((rows, 3, 20, 20), dtype=np.float32) * 2 - 0.5
-    exported, reference = OnnxForward(net), TorchForward(net)
-    assert np.abs(exported(obs) - reference(obs)).max() < 1e-5
 
 
 def test_the_torch_forward_in_chunks_is_the_network_in_one_call():
@@ -46,33 +26,6 @@ def test_the_torch_forward_in_chunks_is_the_network_in_one_call():
     with torch.inference_mode():
         whole = net(torch.from_numpy(obs)).numpy()
     assert np.abs(TorchForward(net, chunk=64)(obs) - whole).max() < 1e-6
-
-
-@needs_onednn
-@pytest.mark.parametrize("cls", [QNetwork, GlobalLocalQNetwork])
-@pytest.mark.parametrize("rows", [1, 2, 17, 64, 130])
-def test_the_onednn_forward_matches_torch_within_1e5_and_leaves_the_network_alone(cls, rows):
-    torch.manual_seed(rows)
-    net = cls(13)
-    before = {k: v.clone() for k, v in net.state_dict().items()}
-    obs = np.random.default_rng(rows).random((rows, cls.in_channels, 13, 13), dtype=np.float32).round()
-    fast, reference = OneDnnForward(net), TorchForward(net)
-    assert np.abs(fast(obs) - reference(obs)).max() < 1e-5
-    assert np.array_equal(fast(obs), fast(obs.copy()))  # the same rows, the same bits
-    assert all(torch.equal(before[k], v) for k, v in net.state_dict().items())
-    assert all(type(m) is torch.nn.Conv2d for m in net.modules() if isinstance(m, torch.nn.Conv2d))
-
-
-@needs_onednn
-def test_the_split_forward_sends_small_calls_to_one_forward_and_batches_to_the_other():
-    net = QNetwork(20)
-    split = make_forward(net, "torch+onednn")
-    assert split.name == "torch+onednn" and split.rows == SPLIT_ROWS
-    rng = np.random.default_rng(0)
-    for rows in (1, SPLIT_ROWS, SPLIT_ROWS + 1, 100):
-        obs = rng.random((rows, 3, 20, 20), dtype=np.float32).round()
-        chosen = split.small if rows <= SPLIT_ROWS else split.large
-        assert np.array_equal(split(obs), chosen(obs))
 
 
 def test_forward_choice_and_its_errors(monkeypatch):

@@ -1,15 +1,22 @@
-"""The Q-network's forward pass at inference: plain torch (the reference) or onnxruntime.
+"""The Q-network's forward pass at inference: eager torch (the reference), onnxruntime or fused oneDNN,
+alone or split between two by a call's row count.
 
-`make_forward(net, "auto")` gives the onnxruntime forward when `onnxruntime` is installed (`pip
-install 'swarmctl[onnx]'`) and plain torch otherwise; "torch" and "onnx" ask for one. Both take
-observations (N, 3, F, F) float32 as numpy and return Q-values (N, 5) float32, and both run large
-batches in chunks of CHUNK rows, so the activations of a chunk stay in the CPU's cache.
+`make_forward(net, backend)` takes one of six BACKENDS: "torch" (eager torch), "onnx" (the network
+exported to ONNX, run by onnxruntime: `pip install 'swarmctl[onnx]'`), "onednn" (torch on a
+channels-last copy whose convolutions and ReLUs are fused oneDNN primitives: a torch built with oneDNN,
+as the CPU wheels are), "onnx+onednn" and "torch+onednn" (calls of up to SPLIT_ROWS = 6 rows on the
+first, larger ones on oneDNN), and "auto", which is not a forward of its own but picks one: the split
+onnx+onednn, or torch+onednn (eager torch for the small calls) where onnxruntime is not installed; plain
+onnx or torch only where torch lacks oneDNN. The forward it returns carries the name of what it picked.
+Every forward takes observations (N, C, F, F) float32 as numpy (C: the network's in_channels, 3 for the
+paper's variant) and returns Q-values (N, 5) float32, and runs large batches in chunks of CHUNK rows,
+so the activations of a chunk stay in the CPU's cache.
 
 Why onnxruntime: at batch 1 the network is call-bound. On one thread (2-core AMD EPYC, one run)
 eager torch took 4.6x the network's FLOP time at batch 2, TorchScript frozen and optimised 3.8x,
 torch.compile (inductor, frozen weights) 3.7x after 16 s of compiling, onnxruntime 2.0x with its
 extended graph optimisations (2.3x with the NCHWc layout, which pads the 20 channels to 32).
-onnxruntime's Q-values agree with torch's within 1e-5 (tests/test_speed.py pins it); they are not
+onnxruntime's Q-values agree with torch's within 1e-5 (tests/test_fast_paths.py pins it); they are not
 bit-identical, so a softmax draw that falls within about 1e-7 of a boundary may go the other way.
 
 Why oneDNN for batches: past a few rows the network is compute-bound, and torch on channels-last
@@ -27,13 +34,15 @@ from __future__ import annotations
 import copy
 import io
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 import torch
 
 from swarmctl.errors import InputError
-from swarmctl.policy.fused import POINTWISE, fuse_conv_relu
-from swarmctl.policy.qnet import QNetwork
+from swarmctl.policy.fused import POINTWISE, fuse_conv_relu, to_memory_format
+from swarmctl.policy.qnet import QNet
 
 BACKENDS = ("auto", "torch", "onnx", "onednn", "onnx+onednn", "torch+onednn")
 CHUNK = 64  # rows per forward call (one thread, 1,024 rows: torch 120 us a row in chunks of 64, 194 in
@@ -57,7 +66,7 @@ class TorchForward:
 
     name = "torch"
 
-    def __init__(self, net: QNetwork, chunk: int = CHUNK):
+    def __init__(self, net: QNet, chunk: int = CHUNK):
         self.net, self.chunk = net.eval(), chunk
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -65,11 +74,12 @@ class TorchForward:
         x = torch.from_numpy(np.ascontiguousarray(obs, dtype=np.float32))
         with torch.inference_mode():
             if len(x) <= self.chunk:
-                return self.net(x).numpy()
+                result: np.ndarray = self.net(x).numpy()
+                return result
             return torch.cat([self.net(part) for part in x.split(self.chunk)]).numpy()
 
 
-def export_onnx(net: QNetwork, key: str | None = None) -> bytes:
+def export_onnx(net: QNet, key: str | None = None) -> bytes:
     """The network as an ONNX model with a free batch axis (cached under `key`, e.g. the weights hash)."""
     if key is not None and key in _EXPORTED:
         return _EXPORTED[key]
@@ -80,7 +90,7 @@ def export_onnx(net: QNetwork, key: str | None = None) -> bytes:
         torch.onnx.export(
             net.eval(),
             (example,),
-            buffer,
+            buffer,  # type: ignore[arg-type]  # torch's annotation says a path; it writes to a file object too
             dynamo=False,
             input_names=["obs"],
             output_names=["q"],
@@ -98,7 +108,7 @@ class OnnxForward:
 
     name = "onnx"
 
-    def __init__(self, net: QNetwork, chunk: int = CHUNK, key: str | None = None):
+    def __init__(self, net: QNet, chunk: int = CHUNK, key: str | None = None):
         import onnxruntime as ort
 
         options = ort.SessionOptions()
@@ -109,7 +119,7 @@ class OnnxForward:
         options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # no busy-waiting threads
         self.session = ort.InferenceSession(export_onnx(net, key), options, providers=["CPUExecutionProvider"])
         self.chunk = chunk
-        self._bound: dict[int, tuple] = {}  # rows -> (binding, output buffer), for the small calls
+        self._bound: dict[int, tuple[Any, np.ndarray]] = {}  # rows -> (binding, output buffer), for the small calls
 
     def _run_bound(self, x: np.ndarray) -> np.ndarray:
         """One call of up to SMALL_ROWS rows with the output bound to a buffer kept for that row count
@@ -124,16 +134,18 @@ class OnnxForward:
         binding, out = bound
         binding.bind_cpu_input("obs", x)
         self.session.run_with_iobinding(binding)
-        return out.copy()
+        result: np.ndarray = out.copy()
+        return result
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
         """Q-values (N, 5) for observations (N, 3, F, F)."""
         x = np.ascontiguousarray(obs, dtype=np.float32)
         if len(x) <= SMALL_ROWS:
             return self._run_bound(x)
-        run = lambda part: self.session.run(None, {"obs": part})[0]
+        run: Callable[[np.ndarray], np.ndarray] = lambda part: self.session.run(None, {"obs": part})[0]
         if len(x) <= self.chunk:
-            return run(x)
+            result: np.ndarray = run(x)
+            return result
         return np.concatenate([run(x[i : i + self.chunk]) for i in range(0, len(x), self.chunk)])
 
 
@@ -143,8 +155,8 @@ class OneDnnForward:
 
     name = "onednn"
 
-    def __init__(self, net: QNetwork, chunk: int = CHUNK):
-        self.net = fuse_conv_relu(copy.deepcopy(net).eval().to(memory_format=torch.channels_last))
+    def __init__(self, net: QNet, chunk: int = CHUNK):
+        self.net = fuse_conv_relu(to_memory_format(copy.deepcopy(net).eval(), torch.channels_last))
         self.chunk = chunk
 
     def __call__(self, obs: np.ndarray) -> np.ndarray:
@@ -175,7 +187,7 @@ def onednn_available() -> bool:
     return POINTWISE and torch.backends.mkldnn.is_available()
 
 
-def make_forward(net: QNetwork, backend: str = "auto", key: str | None = None) -> Forward:
+def make_forward(net: QNet, backend: str = "auto", key: str | None = None) -> Forward:
     """The forward for `backend` (module docstring); `key` caches the ONNX export (the weights hash)."""
     if backend not in BACKENDS:
         raise InputError(f"forward {backend!r}: choose one of {', '.join(BACKENDS)}")
@@ -184,8 +196,8 @@ def make_forward(net: QNetwork, backend: str = "auto", key: str | None = None) -
     if "onednn" in backend and not onednn_available():
         raise InputError(f"forward={backend} needs a torch built with oneDNN (the CPU wheels); use forward=torch")
     if backend == "auto":
-        small = "onnx" if onnx_available() else "torch"
-        backend = f"{small}+onednn" if onednn_available() else small
+        first = "onnx" if onnx_available() else "torch"
+        backend = f"{first}+onednn" if onednn_available() else first
     small_name, _, large_name = backend.partition("+")
     if small_name == "onednn":
         return OneDnnForward(net)

@@ -26,6 +26,7 @@ observation built from them. With `cfg.guard` the safety guard (swarmctl.world.g
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -55,6 +56,8 @@ class StepInfo:
 class SearchEnv:
     """B parallel episodes of the paper's search world."""
 
+    _disc_table: np.ndarray  # (W * H, D) the flat cells of each cell's sensing disc (reset_to)
+
     def __init__(self, cfg: WorldConfig, batch: int = 1, stop_at_success: bool = True, observations: bool = True):
         if batch < 1:
             raise ScenarioError(f"batch {batch} must be >= 1")
@@ -65,27 +68,26 @@ class SearchEnv:
         self.channel = Channel(cfg.channel, cfg.cell_size, cfg.loss)
         self.settings = ObservationSettings.from_world(cfg)  # phi is exact here (the field's is quantised)
         self._offsets = fov_offsets(cfg.fov)
-        self._disc_table: np.ndarray | None = None
         self.width = self.height = cfg.map_size
         self.scenarios: list[Scenario] = []
         self.last_observations: np.ndarray | None = None
 
     # ----- episode set-up -------------------------------------------------------------------
     def reset(
-        self, seed: int = 0, episodes: np.ndarray | range | None = None, blocked: np.ndarray | None = None
+        self, seed: int = 0, episodes: Iterable[int] | None = None, blocked: np.ndarray | None = None
     ) -> np.ndarray | None:
         """Start B episodes; episode indices default to 0..B-1. Returns observations (or None).
         `blocked` (W, H) bool: every episode on this fixed map (a real area's grid), targets and
         starts drawn on it (scenario.generate_scenario)."""
-        if episodes is None:
-            episodes = range(self.batch)
-        episodes = list(episodes)
-        if len(episodes) != self.batch:
-            raise ScenarioError(f"reset got {len(episodes)} episode indices for a batch of {self.batch}")
-        scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in episodes]
-        return self.reset_to(scenarios, seed=seed, episodes=episodes)
+        ids = list(range(self.batch) if episodes is None else episodes)
+        if len(ids) != self.batch:
+            raise ScenarioError(f"reset got {len(ids)} episode indices for a batch of {self.batch}")
+        scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in ids]
+        return self.reset_to(scenarios, seed=seed, episodes=ids)
 
-    def reset_to(self, scenarios: list[Scenario], seed: int = 0, episodes=None) -> np.ndarray | None:
+    def reset_to(
+        self, scenarios: list[Scenario], seed: int = 0, episodes: Iterable[int] | None = None
+    ) -> np.ndarray | None:
         """Start from given scenarios (hand-built cases, real maps). All share one grid size.
         `seed`: the episode seed (as given to reset); `episodes`: their ids (default 0..B-1). The ids key
         the policies' random draws; seed and ids key the channel's message losses (Channel.lost)."""
@@ -141,7 +143,7 @@ class SearchEnv:
         return self.last_observations
 
     # ----- one joint move -------------------------------------------------------------------
-    def step(self, actions: np.ndarray):
+    def step(self, actions: np.ndarray) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, StepInfo]:
         """Apply a joint move. Returns (obs or None, reward (B, U), success (B,), StepInfo)."""
         cfg = self.cfg
         actions = np.asarray(actions, dtype=np.int64)
@@ -200,7 +202,8 @@ class SearchEnv:
         cells = np.take_along_axis(disc, order, axis=-1)
         first = np.ones(disc.shape, dtype=bool)  # each cell counted once (off-map entries repeat the centre)
         first[..., 1:] = cells[..., 1:] != cells[..., :-1]
-        return (~np.take_along_axis(seen, order, axis=-1) & first).sum(-1).astype(np.float32)
+        result: np.ndarray = (~np.take_along_axis(seen, order, axis=-1) & first).sum(-1).astype(np.float32)
+        return result
 
     # ----- finish lines found / covered ------------------------------------------------------
     def _record_sensing(self) -> None:
@@ -214,14 +217,18 @@ class SearchEnv:
     def _finished(self) -> np.ndarray:
         """(B,) bool: the finish line `found` or `covered` is reached."""
         if self.cfg.finish == "found":
-            return (self.found_step >= 0).all(1)
-        return ~(self._reachable & ~self._sensed).any(1)
+            found = np.asarray((self.found_step >= 0).all(1))  # (an array: numpy's stubs allow a scalar)
+            return found
+        assert self._reachable is not None and self._sensed is not None  # finish "covered"
+        covered: np.ndarray = ~(self._reachable & ~self._sensed).any(1)
+        return covered
 
     def covered_fraction(self) -> np.ndarray:
         """(B,) float: the share of the free cells 4-connected to a start that have been sensed (finish
         `covered` only; 1.0 when there are none)."""
         if self._reachable is None:
             raise ValueError("covered_fraction needs a world with finish 'covered'")
+        assert self._sensed is not None  # kept for finish "covered"
         reachable = self._reachable.sum(1)
         sensed = (self._reachable & self._sensed).sum(1)
         return np.where(reachable > 0, sensed / np.maximum(reachable, 1), 1.0)
@@ -258,7 +265,8 @@ class SearchEnv:
         bi = np.arange(self.batch)[:, None]
         on_target = self.target_mask[bi, self.pos[..., 0], self.pos[..., 1]]
         same = (self.pos[:, :, None, :] == self.pos[:, None, :, :]).all(-1)
-        return on_target & ~(same & self._lower).any(-1)
+        result: np.ndarray = on_target & ~(same & self._lower).any(-1)
+        return result
 
     def _deliveries(self) -> np.ndarray:
         b, u = self.batch, self.uavs
@@ -269,7 +277,8 @@ class SearchEnv:
             return eye.copy()
         dist = np.sqrt(((self.pos[:, :, None, :] - self.pos[:, None, :, :]) ** 2).sum(-1))
         lost = self.channel.lost(dist, self.seed, self.episodes, self.t)  # [b, receiver, sender]
-        return eye | ~lost
+        result: np.ndarray = eye | ~lost
+        return result
 
     def beliefs(self, batches: np.ndarray | None = None) -> Beliefs:
         """What each vehicle knows, as every policy reads it (B batches of U deciders, N = U vehicles);
@@ -309,8 +318,8 @@ class SearchEnv:
         """(B, U, 3, F, F) float32 observations for every vehicle (remove_taken: default the world's).
 
         Without taken-target removal this is observe(self.beliefs()) built straight from the arrays
-        behind the beliefs (the same builder, observe.build_observations, on the same values: the
-        policy conformance test holds them equal), which saves a third of a step at batch 1."""
+        behind the beliefs (the same builder, observe.build_observations, on the same values:
+        tests/test_fast_paths.py holds them equal), which saves a third of a step at batch 1."""
         taken = self.cfg.remove_taken if remove_taken is None else remove_taken
         if taken or self.settings.variant != PAPER_VARIANT:
             return observe(self.beliefs(), taken)
