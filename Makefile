@@ -19,6 +19,7 @@ demo: $(BIN)/swarmctl
 test: $(BIN)/swarmctl
 	$(BIN)/ruff check swarmctl tests tools
 	$(BIN)/ruff format --check swarmctl tests tools
+	$(BIN)/python tools/type_counts.py && $(BIN)/mypy
 	$(BIN)/python -m pytest -q
 
 lint: $(BIN)/swarmctl

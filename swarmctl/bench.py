@@ -132,17 +132,17 @@ def planner_decisions(specs: list[str], vehicles: int, seconds: float, blocked: 
     """Seconds per vehicle of one batch-1 decision of each planner spec, for `vehicles` vehicles a few
     steps into a sparse search on `blocked`, measured in alternating rounds (the ratios between
     them hold for one stretch of the machine's time)."""
-    from swarmctl.policy.registry import make_policy
+    from swarmctl.policy.registry import make_decider
 
     w, h = blocked.shape
     cfg = WorldConfig(scenario="sparse", map_size=max(w, h), uavs=vehicles, targets=vehicles, d_sparse=2.0)
     env = SearchEnv(cfg, batch=1, observations=False)
     env.reset(seed=0, blocked=blocked)
-    walk = make_policy("frontier:hover=no")
+    walk = make_decider("frontier:hover=no")
     walk.reset(env.beliefs(), 0)
     for _ in range(8):  # some of the map explored, the swarm spread out
         env.step(walk.act(env.beliefs()))
-    policies = [make_policy(s) for s in specs]
+    policies = [make_decider(s) for s in specs]
     for p in policies:
         p.reset(env.beliefs(), 0)
         p.act(env.beliefs())  # warm-up

@@ -51,7 +51,11 @@ class FieldOption(click.Option):
 def field_default(cls: type, name: str) -> Any:
     """The default of a dataclass field."""
     f = _field(cls, name)
-    return f.default_factory() if f.default is dataclasses.MISSING else f.default
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if not callable(f.default_factory):  # (MISSING: a field without a default)
+        raise ValueError(f"{cls.__name__}.{name} has no default")
+    return f.default_factory()
 
 
 def field_help(cls: type, name: str) -> str | None:

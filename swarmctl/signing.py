@@ -85,7 +85,7 @@ class _ClockedSigning(MAVLinkSigning):
         clock.advance(state.timestamp)
 
     @property
-    def timestamp(self) -> int:  # type: ignore[override]
+    def timestamp(self) -> int:
         return self._clock.now()
 
     @timestamp.setter

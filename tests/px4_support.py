@@ -18,7 +18,8 @@ import contextlib
 import fcntl
 import re
 import shutil
-from collections.abc import Iterator, Sequence
+import subprocess
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -147,6 +148,16 @@ class PX4Sitl:
         return (18570 + self.instance, 14580 + self.instance)
 
 
+def set_param(bin_folder: Path, v: PX4Sitl, name: str, value: float) -> None:
+    """`param set NAME VALUE` in a running instance, through PX4's client (px4-param --instance N);
+    SitlError when it is not taken."""
+    text = repr(int(value)) if float(value).is_integer() else repr(float(value))
+    argv = [str(bin_folder / "px4-param"), "--instance", str(v.instance), "set", name, text]
+    done = subprocess.run(argv, cwd=v.proc.folder, capture_output=True, text=True, timeout=20)
+    if done.returncode != 0:
+        raise SitlError(f"PX4 SITL -i {v.instance}: param set {name} {text} failed: {done.stdout}{done.stderr}")
+
+
 def _started(proc: SimProcess) -> bool:
     return "Startup script returned successfully" in proc.console()
 
@@ -159,10 +170,13 @@ def px4_sitl(
     instances: Sequence[int] | None = None,
     timeout: float = 30.0,
     speed: float = 1.0,
+    params: Mapping[str, float] | None = None,
 ) -> Iterator[list[PX4Sitl]]:
     """Start `count` PX4 SITL instances (SIH quadrotor) in parallel and yield them once each has run its
     start-up script and bound its MAVLink ports. `speed` runs the simulation that many times faster than
     the wall clock (PX4_SIM_SPEED_FACTOR; PX4's start-up script lengthens its link-loss timeouts by it).
+    `params` are set once each has started (`param set` through PX4's own shell client, as a user would in
+    its console; e.g. NAV_DLL_ACT 2, the GCS failsafe swarmctl's preflight asks for).
     Every instance is stopped, its folder removed and its /tmp socket and lock removed on the way out,
     whatever happened."""
     binary, etc = require_px4()
@@ -185,6 +199,9 @@ def px4_sitl(
                 "PX4 SITL to run its start-up script and bind its MAVLink ports",
                 procs,
             )
+            for v in vehicles:
+                for name, value in (params or {}).items():
+                    set_param(root / "bin", v, name, value)
             yield vehicles
     finally:  # after sim_run has stopped them
         for v in vehicles:

@@ -62,6 +62,13 @@ DETECTOR_PORT = 14650  # + the instance number: the mission's detector socket fo
 # SITL's simulated 3300 mAh battery reads 15 % (swarmctl's return_below) about 6 minutes of vehicle time
 # after arming: ten times the capacity lets a sped-up flight run its course
 BATTERY_MAH = 33000
+# the GCS failsafe a user is told to turn on (swarmctl's preflight refuses a vehicle without it): SITL's
+# defaults are off (FS_GCS_ENABLE 0, NAV_DLL_ACT 0); 1 = RTL, 2 = return. ArduCopter's FS_GCS_TIMEOUT (5 s)
+# counts simulated time: sped up N times it would lapse between two of the controller's 1 Hz heartbeats,
+# so it is lengthened by the speed-up (PX4's start-up script does the same with its own)
+ARDUCOPTER_FAILSAFE = {"FS_GCS_ENABLE": 1}
+GCS_TIMEOUT_S = 5.0  # ArduCopter's default FS_GCS_TIMEOUT, in wall-clock seconds here
+PX4_FAILSAFE = {"NAV_DLL_ACT": 2}
 POLL_S = 0.2
 POOL_WAIT_S = 900.0  # a scenario waits this long for instance numbers (the others' flights end sooner)
 
@@ -463,13 +470,19 @@ def fly_scenario(scenario: Scenario, stopping: threading.Event, keep: Path | Non
                     homes=homes(grid, ac),
                     speedup=scenario.arducopter_speedup,
                     instances=numbers_ac,
-                    params={"BATT_CAPACITY": BATTERY_MAH},
+                    params={
+                        "BATT_CAPACITY": BATTERY_MAH,
+                        **ARDUCOPTER_FAILSAFE,
+                        "FS_GCS_TIMEOUT": min(120.0, GCS_TIMEOUT_S * scenario.arducopter_speedup),
+                    },
                 )
             )
             sims.update({c.name: s for c, s in zip(ac, copters)})
         if px:
             vehicles = stack.enter_context(
-                px4_sitl(len(px), homes=homes(grid, px), instances=numbers_px4, speed=scenario.px4_speed)
+                px4_sitl(
+                    len(px), homes=homes(grid, px), instances=numbers_px4, speed=scenario.px4_speed, params=PX4_FAILSAFE
+                )
             )
             sims.update({c.name: s for c, s in zip(px, vehicles)})
         flight = Flight(scenario, folder, stopping)

@@ -71,32 +71,42 @@ def test_listeners_get_their_types_and_batches_hold_every_frame_once_in_order():
     assert our_threads() == []
 
 
-def test_a_failing_listener_does_not_stop_the_others():
+def test_a_failing_listener_silences_its_vehicle_but_not_the_link_or_the_others():
+    """A listener that raises on a vehicle's message: that vehicle is judged silent (lost; its messages
+    reach no listener again, while the batches, the recording, still have them); the other vehicles'
+    messages reach every listener. A batch listener that raises is not called again; the others are."""
+
     async def scenario():
         link = await MavlinkLink("udpin:127.0.0.1:0").open()
         sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            heard, batches = [], []
+            heard, batches, broken_batches = [], [], []
 
-            def broken(_msg):
-                raise ValueError("a listener's bug")
+            def broken(msg):
+                if msg.get_srcSystem() == 5:
+                    raise ValueError("a listener's bug")
 
-            def broken_batch(_msgs):
+            def broken_batch(msgs):
+                broken_batches.append(len(msgs))
                 raise ValueError("a batch listener's bug")
 
             link.add_listener(broken, ("HEARTBEAT",))
             link.add_batch_listener(broken_batch)
-            link.add_listener(lambda m: heard.append(m.get_type()), ("HEARTBEAT",))
+            link.add_listener(lambda m: heard.append((m.get_srcSystem(), m.get_type())), ("HEARTBEAT",))
             link.add_batch_listener(lambda ms: batches.append(len(ms)))
-            for frame in frames(5, 4):
-                sock.sendto(frame, ("127.0.0.1", link.local_port))
-            await until(lambda: sum(batches) == 4)
-            return heard
+            for a, b in zip(frames(5, 4), frames(6, 4)):
+                sock.sendto(a, ("127.0.0.1", link.local_port))
+                sock.sendto(b, ("127.0.0.1", link.local_port))
+            await until(lambda: sum(batches) == 8)
+            return heard, len(broken_batches), dict(link.silenced), link.is_lost(5), link.is_lost(6)
         finally:
             sock.close()
             await link.close()
 
-    assert run(scenario()) == ["HEARTBEAT", "HEARTBEAT"]
+    heard, broken_calls, silenced, five_lost, six_lost = run(scenario())
+    assert heard == [(6, "HEARTBEAT"), (6, "HEARTBEAT")]
+    assert broken_calls == 1 and list(silenced) == [5] and "ValueError" in silenced[5]
+    assert five_lost and not six_lost
 
 
 def _parsed(frames_: list[bytes]) -> list:

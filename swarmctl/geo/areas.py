@@ -169,7 +169,9 @@ def read_geojson_area(path: Path) -> Area:
     """Read an Area from GeoJSON (see the module docstring for no-fly features)."""
     obj = read_json(path, "GeoJSON")
     collection = isinstance(obj, dict) and obj.get("type") == "FeatureCollection"
-    area, nofly, tagged = [], [], 0
+    area: list[tuple[Polygon, str]] = []
+    nofly: list[tuple[Polygon, str]] = []
+    tagged = 0
     for poly, props, where, index in geojson_polygons(obj, path):
         at = f"features[{index}]." if collection else ""
         (nofly if _is_nofly(props, path, at) else area).append((poly, where))
@@ -217,7 +219,8 @@ def read_kml(path: Path) -> Area:
     except ET.ParseError as exc:
         raise InputError(f"{path}: not valid KML/XML ({exc}); fix the file or export it again as KML") from None
     placemarks = [e for e in root.iter() if _local(e.tag) == "Placemark"] or [root]
-    area, nofly = [], []
+    area: list[tuple[Polygon, str]] = []
+    nofly: list[tuple[Polygon, str]] = []
     for pi, pm in enumerate(placemarks):
         name = next((e.text or "" for e in pm if _local(e.tag) == "name"), "")
         target = nofly if _NOFLY_NAME.match(name) else area

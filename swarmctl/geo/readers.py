@@ -11,6 +11,7 @@ import json
 import math
 import numbers
 from pathlib import Path
+from typing import TypeGuard
 
 import numpy as np
 import shapely
@@ -85,7 +86,7 @@ def show_json(value: object) -> str:
     return f"{text} ({kind})" if kind else text
 
 
-def is_number(value: object) -> bool:
+def is_number(value: object) -> TypeGuard[numbers.Real]:
     """Whether `value` is a JSON number: an int or a float (numpy's too), not a bool or a string."""
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
@@ -96,7 +97,7 @@ def json_number(value: object, path: Path, field: str, fix: str) -> float:
     if not is_number(value):
         raise InputError(f"{path}: {field} is {show_json(value)}, not a number; {fix}")
     try:
-        number = float(value)  # type: ignore[arg-type]
+        number = float(value)
     except OverflowError:  # an integer of hundreds of digits
         number = math.inf
     if not math.isfinite(number):
@@ -337,11 +338,11 @@ def geojson_polygons(obj: object, path: Path) -> list[tuple[Polygon, dict, str, 
                 raise InputError(
                     f"{path}: feature {i}: features[{i}] is {show_json(f)}, not a JSON object; fix the file"
                 )
-            props = f.get("properties") if isinstance(f.get("properties"), dict) else {}
-            geometry(f.get("geometry"), props, f"feature {i}", i, f"features[{i}].geometry")
+            p = f.get("properties")
+            geometry(f.get("geometry"), p if isinstance(p, dict) else {}, f"feature {i}", i, f"features[{i}].geometry")
     elif kind == "Feature":
-        props = obj.get("properties") if isinstance(obj.get("properties"), dict) else {}
-        geometry(obj.get("geometry"), props, "feature 0", 0, "geometry")
+        p = obj.get("properties")
+        geometry(obj.get("geometry"), p if isinstance(p, dict) else {}, "feature 0", 0, "geometry")
     else:
         geometry(obj, {}, "geometry")
     return out

@@ -87,11 +87,13 @@ def measure(
             kn, MISSION, sink.getsockname(), system_id=1, members={0: 1, 1: 2}, fov=FOV, digest_every=5, signing_key=key
         )
         codec = KnowledgeCodec(MISSION, size, size, system_id=sysid, signing_key=key if sender_key else None)
+        address = vehicle.address
+        assert address is not None  # a UDP exchange
         try:
             for step in range(1, steps + 1):
                 vehicle.step(step, (size - 1, size - 1))
                 for frame in _messages(codec, kind, sender, step, per_step, size):
-                    sink.sendto(frame, vehicle.address)
+                    sink.sendto(frame, address)
                 while vehicle.poll(0.05):
                     pass
                 _drain(sink)

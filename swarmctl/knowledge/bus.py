@@ -53,7 +53,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarmctl.knowledge.codec import KIND_NAMES, PT_DELTA, PT_DETECTION, KnowledgeCodec
+from swarmctl.knowledge.codec import KIND_NAMES, PT_DELTA, PT_DETECTION, KnowledgeCodec, Message
+from swarmctl.knowledge.model import Delta, Detection
 from swarmctl.knowledge.stack import KnowledgeStack
 from swarmctl.knowledge.trust import KnowledgeTrust
 from swarmctl.world.channel import Channel
@@ -118,7 +119,7 @@ class KnowledgeBus:
         return self._batch.handled.pop(member, 0)
 
     def publish(
-        self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int, message: Any = None
+        self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int, message: Message | None = None
     ) -> int:
         """One TUNNEL payload of `sender` (its frame `size` bytes long) to every other member, lost as the
         channel says; returns how many members it reached. `message`: what the payload decodes to, when
@@ -136,7 +137,8 @@ class KnowledgeBus:
         if not self.trust.admit(message, sender.system_id):  # counted in trust.rejected, delivered to no one
             return 0
         kind = KIND_NAMES[payload_type]
-        if self.ideal and self._batch is not None and self._batch.stacked:
+        # (an ideal bus carries deltas and detections only: IDEAL_KINDS)
+        if self.ideal and self._batch is not None and self._batch.stacked and isinstance(message, (Delta, Detection)):
             reached = self._batch.add(sender, message, kind, size)
             self.delivered += reached
             return reached
@@ -197,7 +199,7 @@ class _Batch:
         self.stacked = True  # every member's knowledge is a row of the stack
         self.rows: dict[KnowledgeExchange, int] = {}
         self.mask = np.zeros(stack.rows, dtype=bool)  # the members' rows (a new array at each change)
-        self.messages: list = []
+        self.messages: list[Delta | Detection] = []
         self.masks: list[np.ndarray] = []
         self.senders: list[int] = []  # the senders' rows
         self.kinds: list[str] = []
@@ -211,7 +213,7 @@ class _Batch:
         self.mask = np.zeros(self.stack.rows, dtype=bool)
         self.mask[list(self.rows.values())] = True
 
-    def add(self, sender: KnowledgeExchange, message, kind: str, size: int) -> int:
+    def add(self, sender: KnowledgeExchange, message: Delta | Detection, kind: str, size: int) -> int:
         self.messages.append(message)
         self.masks.append(self.mask)
         self.senders.append(sender.knowledge._row)

@@ -178,7 +178,7 @@ class KnowledgeCodec:
         step: int,
         chunk: int,
         chunks: int,
-        cell,
+        cell: tuple[int, int] | None,
         on_target: bool,
         repair: bool,
         cell_list: bool = False,
@@ -214,7 +214,7 @@ class KnowledgeCodec:
             return [(*self._encode_bitmap(message), message)]
         raise TypeError(f"cannot encode a {type(message).__name__}")
 
-    def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes, Delta]]:
+    def _encode_delta(self, delta: Delta, repair: bool) -> list[tuple[int, bytes, Message]]:
         repair = repair or delta.repair
         cells = delta.cells
         if cells.size and (
@@ -231,7 +231,7 @@ class KnowledgeCodec:
         parts = delta.split(MAX_DELTA_CELLS)
         if repair and not delta.repair:  # what decoding gives back: the repair flag set
             parts = [Delta(p.sender, p.step, p.cell, p.on_target, p.cells, p.phi, p.obstacle, True) for p in parts]
-        out = []
+        out: list[tuple[int, bytes, Message]] = []
         for i, part in enumerate(parts):
             # chunks stand alone; past 255 of them the numbering starts a new group of up to 255
             group = i // MAX_CHUNKS * MAX_CHUNKS
@@ -242,7 +242,7 @@ class KnowledgeCodec:
             out.append((PT_DELTA, head + bytes([len(part)]) + chunk, part))
         return out
 
-    def _encode_detection(self, det: Detection) -> list[tuple[int, bytes, Detection]]:
+    def _encode_detection(self, det: Detection) -> list[tuple[int, bytes, Message]]:
         t = det.targets
         if not len(t):
             raise ValueError("a detection needs at least one target cell")
@@ -283,7 +283,7 @@ class KnowledgeCodec:
         self,
         sender: int,
         step: int,
-        cell,
+        cell: tuple[int, int] | None,
         on_target: bool,
         explored: np.ndarray,
         target: int | None = None,
@@ -305,7 +305,6 @@ class KnowledgeCodec:
                 f": {detail}" if detail else "",
             )
         self.rejected[reason] += 1
-        return None
 
     def decode(
         self, payload_type: int, payload: bytes | bytearray | list[int], payload_length: int | None = None
@@ -316,37 +315,49 @@ class KnowledgeCodec:
         try:
             data = bytes(payload)
         except (TypeError, ValueError):
-            return self._reject("payload")
+            self._reject("payload")
+            return None
         if payload_type not in KIND_NAMES:
-            return self._reject("payload_type", str(payload_type))
+            self._reject("payload_type", str(payload_type))
+            return None
         n = len(data) if payload_length is None else int(payload_length)
         if len(data) > PAYLOAD_SIZE or n > PAYLOAD_SIZE:
-            return self._reject("oversized", f"{max(n, len(data))} bytes")
+            self._reject("oversized", f"{max(n, len(data))} bytes")
+            return None
         if n > len(data) or n < HEADER_SIZE:
-            return self._reject("truncated", f"{n} bytes")
+            self._reject("truncated", f"{n} bytes")
+            return None
         if any(data[n:]):
-            return self._reject("oversized", "non-zero bytes after payload_length")
+            self._reject("oversized", "non-zero bytes after payload_length")
+            return None
         version, mission, sender, step, w, h, _seq, chunk, chunks, x, y, flags = HEADER.unpack_from(data)
         if version != FORMAT_VERSION:
-            return self._reject("version", str(version))
+            self._reject("version", str(version))
+            return None
         if mission != self.mission_id:
-            return self._reject("mission", str(mission))
+            self._reject("mission", str(mission))
+            return None
         if (w, h) != (self.width, self.height):
-            return self._reject("grid", f"{w} x {h}")
+            self._reject("grid", f"{w} x {h}")
+            return None
         if flags & ~(FLAG_ON_TARGET | FLAG_REPAIR | FLAG_CELL_LIST) or (
             flags & FLAG_CELL_LIST and payload_type not in (PT_DIGEST, PT_REQUEST)
         ):
-            return self._reject("flags", hex(flags))
+            self._reject("flags", hex(flags))
+            return None
         if (x, y) == (NO_CELL, NO_CELL):
             cell = None
         elif x < w and y < h:
             cell = (x, y)
         else:
-            return self._reject("cell", f"position ({x}, {y})")
+            self._reject("cell", f"position ({x}, {y})")
+            return None
         if chunks == 0 or chunk >= chunks:
-            return self._reject("chunks", f"{chunk}/{chunks}")
+            self._reject("chunks", f"{chunk}/{chunks}")
+            return None
         on_target = bool(flags & FLAG_ON_TARGET)
         body = data[HEADER_SIZE:n]
+        msg: Message | None
         if payload_type == PT_DELTA:
             msg = self._decode_delta(body, sender, step, cell, on_target, chunks, bool(flags & FLAG_REPAIR))
         elif payload_type == PT_DETECTION:
@@ -360,52 +371,83 @@ class KnowledgeCodec:
             self.last_repair = bool(flags & FLAG_REPAIR)
         return msg
 
-    def _decode_delta(self, body: bytes, sender, step, cell, on_target, chunks, repair: bool) -> Delta | None:
+    def _decode_delta(
+        self,
+        body: bytes,
+        sender: int,
+        step: int,
+        cell: tuple[int, int] | None,
+        on_target: bool,
+        chunks: int,
+        repair: bool,
+    ) -> Delta | None:
         if chunks > self.max_delta_chunks:
-            return self._reject("chunks", f"{chunks} delta chunks for {self.width * self.height} cells")
+            self._reject("chunks", f"{chunks} delta chunks for {self.width * self.height} cells")
+            return None
         if not body or len(body) != 1 + 3 * body[0] or body[0] > MAX_DELTA_CELLS:
-            return self._reject("length", "delta body does not match its cell count")
+            self._reject("length", "delta body does not match its cell count")
+            return None
         rec = np.frombuffer(body, dtype=_CELL_DTYPE, offset=1)
         idx = rec["cell"] & 0x7FFF
         if idx.size and int(idx.max()) >= self.width * self.height:
-            return self._reject("cell", "delta cell outside the grid")
+            self._reject("cell", "delta cell outside the grid")
+            return None
         cells = np.empty((len(idx), 2), dtype=np.int64)
         np.divmod(idx, self.height, out=(cells[:, 0], cells[:, 1]))
         return Delta(sender, step, cell, on_target, cells, rec["phi"].copy(), rec["cell"] >= 0x8000, repair)
 
-    def _decode_detection(self, body: bytes, sender, step, cell, on_target) -> Detection | None:
+    def _decode_detection(
+        self, body: bytes, sender: int, step: int, cell: tuple[int, int] | None, on_target: bool
+    ) -> Detection | None:
         if not body or body[0] == 0 or body[0] > MAX_DETECTIONS or len(body) != 1 + 2 * body[0]:
-            return self._reject("length", "detection body does not match its count")
+            self._reject("length", "detection body does not match its count")
+            return None
         t = np.frombuffer(body, dtype=np.uint8, offset=1).reshape(-1, 2).astype(np.int64)
         if (t[:, 0] >= self.width).any() or (t[:, 1] >= self.height).any():
-            return self._reject("cell", "detection outside the grid")
+            self._reject("cell", "detection outside the grid")
+            return None
         return Detection(sender, step, cell, on_target, t)
 
     def _decode_bitmap(
-        self, ptype, body: bytes, sender, step, cell, on_target, chunk, chunks, cell_list: bool
+        self,
+        ptype: int,
+        body: bytes,
+        sender: int,
+        step: int,
+        cell: tuple[int, int] | None,
+        on_target: bool,
+        chunk: int,
+        chunks: int,
+        cell_list: bool,
     ) -> BitmapChunk | None:
         if chunks != self.chunks:
-            return self._reject("chunks", f"{chunks} bitmap chunks, the grid needs {self.chunks}")
+            self._reject("chunks", f"{chunks} bitmap chunks, the grid needs {self.chunks}")
+            return None
         target = None
         if ptype == PT_REQUEST:
             if not body:
-                return self._reject("length", "request without a target")
+                self._reject("length", "request without a target")
+                return None
             target, body = body[0], body[1:]
         nbits = min(CELLS_PER_CHUNK, self.width * self.height - chunk * CELLS_PER_CHUNK)
         if cell_list:
             if not body or len(body) != 1 + 2 * body[0]:
-                return self._reject("length", "cell list does not match its count")
+                self._reject("length", "cell list does not match its count")
+                return None
             offsets = np.frombuffer(body, dtype="<u2", offset=1)
             if offsets.size and (int(offsets[-1]) >= nbits or (np.diff(offsets.astype(np.int64)) <= 0).any()):
-                return self._reject("cell", "cell list not increasing or outside the chunk")
+                self._reject("cell", "cell list not increasing or outside the chunk")
+                return None
             bits = np.zeros(nbits, dtype=bool)
             bits[offsets] = True
             return BitmapChunk(sender, step, cell, on_target, chunk, chunks, bits, target)
         if len(body) != -(-nbits // 8):
-            return self._reject("length", f"bitmap chunk of {len(body)} bytes, expected {-(-nbits // 8)}")
+            self._reject("length", f"bitmap chunk of {len(body)} bytes, expected {-(-nbits // 8)}")
+            return None
         bits = np.unpackbits(np.frombuffer(body, dtype=np.uint8), bitorder="little").astype(bool)
         if bits[nbits:].any():
-            return self._reject("padding", "bits beyond the grid are set")
+            self._reject("padding", "bits beyond the grid are set")
+            return None
         return BitmapChunk(sender, step, cell, on_target, chunk, chunks, bits[:nbits], target)
 
     # ----- MAVLink 2 frames -------------------------------------------------------------------------
@@ -421,7 +463,7 @@ class KnowledgeCodec:
         codec's system and component ids, in its sequence and signed as its TUNNELs are (the mission's
         reports to a ground station: swarmctl.mission.finish)."""
         data = text.encode("ascii", "replace")[:50]
-        buf = self._tx.statustext_encode(severity, data).pack(self._tx)
+        buf: bytes = self._tx.statustext_encode(severity, data).pack(self._tx)
         self._tx.seq = (self._tx.seq + 1) % 256
         return buf
 

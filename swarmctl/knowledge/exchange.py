@@ -47,13 +47,14 @@ import select
 import socket
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from swarmctl.errors import InputError
 from swarmctl.knowledge.budget import AnswerBudget
-from swarmctl.knowledge.codec import BitmapChunk, KnowledgeCodec, chunk_mask
+from swarmctl.knowledge.codec import BitmapChunk, KnowledgeCodec, Message, chunk_mask
 from swarmctl.knowledge.model import Delta, Detection, Knowledge
 from swarmctl.knowledge.trust import KnowledgeTrust
 
@@ -63,6 +64,20 @@ if TYPE_CHECKING:
 log = logging.getLogger("swarmctl.knowledge")
 
 Address = tuple[str, int]
+
+
+class DatagramSocket(Protocol):
+    """What an exchange uses of its UDP socket: a socket.socket, or a wrapper (the recorder's tap)."""
+
+    def sendto(self, data: bytes, address: Address, /) -> int: ...
+
+    def recvfrom(self, bufsize: int, /) -> tuple[bytes, Any]: ...
+
+    def fileno(self) -> int: ...
+
+    def close(self) -> None: ...
+
+
 NEVER = np.iinfo(np.int64).max
 RECEIVE_BUFFER = 1 << 20  # bytes: room for a burst of a few thousand frames
 # what one poll reads at most (the rest waits in the socket for the next poll, as the vehicle links'
@@ -127,24 +142,24 @@ class KnowledgeExchange:
         self.budget = AnswerBudget(signed=signing_key is not None)
         self._found: dict[tuple[int, int], tuple[int, tuple[int, int] | None]] = {}  # own finds: (step, seen from)
         self.stats: Counter[str] = Counter()  # sent/received packets and bytes, requests, repairs
-        self._inbox: deque[tuple[object, str, int]] = deque()  # bus deliveries: (message, kind, frame bytes)
-        self.sock = None
+        self._inbox: deque[tuple[Message, str, int]] = deque()  # bus deliveries: (message, kind, frame bytes)
+        self.sock: DatagramSocket | None = None  # UDP only
         self.address: Address | None = None
         if bus is not None:
             bus.join(self)
             return
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        sock = self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
-            self.sock.bind((host, port))
-            self.sock.setblocking(False)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
+            sock.bind((host, port))
+            sock.setblocking(False)
         except OSError as exc:
-            self.sock.close()
+            sock.close()
             raise InputError(
                 f"knowledge link: cannot open UDP {host}:{port} ({exc.strerror}); "
                 "check the address and that the port is free"
             ) from None
-        self.address: Address = self.sock.getsockname()
+        self.address = sock.getsockname()
 
     # ----- life cycle -------------------------------------------------------------------------------
     def fileno(self) -> int:
@@ -160,11 +175,11 @@ class KnowledgeExchange:
     def __enter__(self) -> KnowledgeExchange:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 
     # ----- sending ----------------------------------------------------------------------------------
-    def _send(self, message, repair: bool = False, answering: int | None = None) -> None:
+    def _send(self, message: Message, repair: bool = False, answering: int | None = None) -> None:
         """Encode once; each frame goes out once: to the UDP peer, or to the outlet and the bus. An
         answer to vehicle `answering`'s digest or request goes out only as far as its budget allows."""
         for payload_type, payload, part in self.codec.encode_parts(message, repair):
@@ -177,6 +192,7 @@ class KnowledgeExchange:
                     self.stats["link_packets"] += 1  # on the vehicle's own MAVLink link
                 self.bus.publish(self, payload_type, payload, len(frame), part)
             else:
+                assert self.sock is not None and self.peer is not None  # UDP: made with a peer, no bus
                 try:
                     self.sock.sendto(frame, self.peer)
                 except OSError as exc:  # a full buffer or an unreachable peer: counted, the mission goes on
@@ -197,22 +213,23 @@ class KnowledgeExchange:
         step: int,
         cell: tuple[int, int],
         on_target: bool = False,
-        cells=None,
-        phi=None,
-        obstacle=None,
-        targets=None,
+        cells: npt.ArrayLike | None = None,
+        phi: npt.ArrayLike | None = None,
+        obstacle: npt.ArrayLike | None = None,
+        targets: np.ndarray | None = None,
     ) -> None:
         """One decision step: record the own position, sense `cells` (with their phi and obstacle
         flags), note target cells found, and publish."""
         self.knowledge.set_position(step, cell, on_target)
         if cells is not None:
+            assert phi is not None and obstacle is not None, "sensed cells come with their phi and obstacle flags"
             self.knowledge.sense(cells, phi, obstacle)
         self._note_learned(step)
         self.publish(step)
         if targets is not None and len(targets):
             self.report_targets(targets, step)
 
-    def report_targets(self, cells, step: int, seen_from: tuple[int, int] | None = None) -> None:
+    def report_targets(self, cells: np.ndarray, step: int, seen_from: tuple[int, int] | None = None) -> None:
         """Record target cells this vehicle saw at `step` from `seen_from` (default: its own cell now)
         and broadcast a DETECTION at once, with that step and cell; repeated with every digest."""
         self.knowledge.add_targets(cells, step)
@@ -262,7 +279,7 @@ class KnowledgeExchange:
             self._send(Detection(self.vehicle_id, found_at, seen_from, False, np.array(targets)))
 
     # ----- receiving --------------------------------------------------------------------------------
-    def deliver(self, message, kind: str, size: int) -> None:
+    def deliver(self, message: Message, kind: str, size: int) -> None:
         """A message from another member of the bus (`kind` as in KIND_NAMES, its frame `size` bytes);
         handled at the next poll."""
         self._inbox.append((message, kind, size))
@@ -274,16 +291,18 @@ class KnowledgeExchange:
         waits for the next poll."""
         if self.bus is not None:
             return self._poll_bus()
+        sock = self.sock
+        assert sock is not None  # UDP: no bus
         handled = 0
         parsed = 0
         wait = timeout
         while parsed < POLL_BYTES:
             if wait > 0:
-                ready, _, _ = select.select([self.sock], [], [], wait)
+                ready, _, _ = select.select([sock], [], [], wait)
                 if not ready:
                     return handled
             try:
-                data, _addr = self.sock.recvfrom(65535)
+                data, _addr = sock.recvfrom(65535)
             except (BlockingIOError, InterruptedError):
                 return handled
             except ConnectionError:  # an ICMP error report from an earlier send: nothing to read
@@ -306,6 +325,7 @@ class KnowledgeExchange:
         return handled
 
     def _poll_bus(self) -> int:
+        assert self.bus is not None
         handled = self.bus.collect(self)  # a stacked ideal bus merges every member's deliveries at once
         while self._inbox:
             message, kind, size = self._inbox.popleft()
@@ -316,7 +336,7 @@ class KnowledgeExchange:
             self._handle(message, size)
         return handled
 
-    def _handle(self, message, size: int) -> None:
+    def _handle(self, message: Message, size: int) -> None:
         """Merge an admitted message (`size`: its frame's bytes, credited to its sender's answer budget)
         and answer it when it is a digest or a request to us."""
         kn = self.knowledge

@@ -23,10 +23,12 @@ Merge semantics (a join semilattice, so merging is idempotent, commutative and a
 from __future__ import annotations
 
 import functools
-from collections.abc import MutableMapping
+from collections.abc import Iterator, Mapping, MutableMapping
 from dataclasses import dataclass, field
+from typing import Any, Self, TypeGuard
 
 import numpy as np
+import numpy.typing as npt
 
 from swarmctl.knowledge.stack import MAX_IDS, NEVER, UNKNOWN, KnowledgeStack, key_cells, position_key, split_key
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
@@ -73,13 +75,13 @@ class Position:
     cell: tuple[int, int] | None
     on_target: bool = False
 
-    def order(self) -> tuple:
+    def order(self) -> tuple[int, int, int, bool]:
         """Total order used by merges: newest step first, then a fixed tie-break."""
         cell = self.cell if self.cell is not None else (-1, -1)
         return (self.step, cell[0], cell[1], self.on_target)
 
 
-def _cells_array(cells) -> np.ndarray:
+def _cells_array(cells: npt.ArrayLike) -> np.ndarray:
     arr = np.asarray(cells, dtype=np.int64)
     return arr.reshape(-1, 2) if arr.size else np.zeros((0, 2), dtype=np.int64)
 
@@ -102,7 +104,7 @@ class Report:
     def position(self) -> Position:
         return Position(self.step, self.cell, self.on_target)
 
-    def _same_report(self, other: object) -> bool:
+    def _same_report(self, other: object) -> TypeGuard[Self]:
         return type(self) is type(other) and (self.sender, self.step, self.cell, self.on_target) == (
             other.sender,
             other.step,
@@ -191,7 +193,7 @@ class Detection(Report):
         return self._same_report(other) and np.array_equal(self.targets, other.targets)
 
 
-class PositionTable(MutableMapping):
+class PositionTable(MutableMapping[int, Position]):
     """A Knowledge's known positions, vehicle id -> Position, kept as keys in its stack row (ids in
     ascending order; a position without a cell is never stored)."""
 
@@ -215,7 +217,7 @@ class PositionTable(MutableMapping):
         self[vehicle]  # KeyError when unknown
         self._row[vehicle] = UNKNOWN
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[int]:
         return iter(np.flatnonzero(self._row >= 0).tolist())
 
     def __len__(self) -> int:
@@ -225,14 +227,14 @@ class PositionTable(MutableMapping):
         return repr(dict(self.items()))
 
 
-class TargetTable(MutableMapping):
+class TargetTable(MutableMapping[tuple[int, int], int]):
     """A Knowledge's known targets, cell (x, y) -> earliest report step, kept in its stack row (cells in
     x, y order)."""
 
     def __init__(self, steps: np.ndarray):
         self._steps = steps
 
-    def _cell(self, cell) -> tuple[int, int]:
+    def _cell(self, cell: Any) -> tuple[int, int]:  # any key: a wrong one is a KeyError
         try:
             x, y = int(cell[0]), int(cell[1])
         except (TypeError, ValueError, IndexError):
@@ -241,29 +243,29 @@ class TargetTable(MutableMapping):
             raise KeyError(cell)
         return x, y
 
-    def __contains__(self, cell) -> bool:
+    def __contains__(self, cell: object) -> bool:
         try:
             return bool(self._steps[self._cell(cell)] != NEVER)
         except KeyError:
             return False
 
-    def __getitem__(self, cell) -> int:
+    def __getitem__(self, cell: tuple[int, int]) -> int:
         step = self._steps[self._cell(cell)]
         if step == NEVER:
             raise KeyError(cell)
         return int(step)
 
-    def __setitem__(self, cell, step: int) -> None:
+    def __setitem__(self, cell: tuple[int, int], step: int) -> None:
         try:
             self._steps[self._cell(cell)] = int(step)
         except KeyError:
             raise ValueError(f"target cell {cell} is outside the grid") from None
 
-    def __delitem__(self, cell) -> None:
+    def __delitem__(self, cell: tuple[int, int]) -> None:
         self[cell]  # KeyError when unknown
         self._steps[self._cell(cell)] = NEVER
 
-    def __iter__(self):
+    def __iter__(self) -> Iterator[tuple[int, int]]:
         x, y = np.nonzero(self._steps != NEVER)
         return iter(zip(x.tolist(), y.tolist()))
 
@@ -295,12 +297,12 @@ class Knowledge:
         st, row = stack
         if (st.width, st.height) != (self.width, self.height) or self.vehicle_id >= st.ids:
             raise ValueError("a knowledge's stack must hold its grid and its vehicle id")
-        self.explored = st.explored[row]
-        self.phi_q = st.phi_q[row]  # 0 where unexplored
-        self.obstacle = st.obstacle[row]  # False where unexplored
-        self._position = st.position[row]
-        self._target_step = st.target_step[row]
-        self._pending = st.pending[row]  # own finds not yet published
+        self.explored: np.ndarray = st.explored[row]
+        self.phi_q: np.ndarray = st.phi_q[row]  # 0 where unexplored
+        self.obstacle: np.ndarray = st.obstacle[row]  # False where unexplored
+        self._position: np.ndarray = st.position[row]
+        self._target_step: np.ndarray = st.target_step[row]
+        self._pending: np.ndarray = st.pending[row]  # own finds not yet published
 
     @property
     def positions(self) -> PositionTable:
@@ -308,7 +310,7 @@ class Knowledge:
         return PositionTable(self._position)
 
     @positions.setter
-    def positions(self, value) -> None:
+    def positions(self, value: Mapping[int, Position]) -> None:
         self._position[:] = UNKNOWN
         table = self.positions
         for v, p in dict(value).items():
@@ -320,7 +322,7 @@ class Knowledge:
         return TargetTable(self._target_step)
 
     @targets.setter
-    def targets(self, value) -> None:
+    def targets(self, value: Mapping[tuple[int, int], int]) -> None:
         self._target_step[:] = NEVER
         table = self.targets
         for c, s in dict(value).items():
@@ -347,7 +349,8 @@ class Knowledge:
 
     def known_targets(self) -> np.ndarray:
         """(W, H) bool: cells known to hold a target (reported by a detection, or sensed with phi 1)."""
-        return (self.explored & (self.phi_q == PHI_LEVELS)) | (self._target_step != NEVER)
+        known: np.ndarray = (self.explored & (self.phi_q == PHI_LEVELS)) | (self._target_step != NEVER)
+        return known
 
     def beliefs(
         self,
@@ -365,13 +368,15 @@ class Knowledge:
         """phi_hat - rho * omega_hat, (W, H) float32: unexplored cells read 1 (the simulator's value
         channel, from the same Beliefs); with remove_taken the targets others sit on are removed."""
         s = ObservationSettings(rho=rho, sigma2=sigma2, phi_cutoff=cutoff, phi_tolerance=PHI_TOLERANCE)
-        return self.beliefs(settings=s).value_channel(remove_taken)[0, 0]
+        channel: np.ndarray = self.beliefs(settings=s).value_channel(remove_taken)[0, 0]
+        return channel
 
     def observation(self, window: int = 20, rho: float = 0.2, remove_taken: bool = False) -> np.ndarray:
         """The (3, F, F) observation of this vehicle (swarmctl.world.observe, from its Beliefs). Peers
         whose position is unknown are left out; the own position must be known."""
         s = ObservationSettings(window=window, rho=rho, phi_tolerance=PHI_TOLERANCE)
-        return observe(self.beliefs(settings=s), remove_taken)[0, 0]
+        obs: np.ndarray = observe(self.beliefs(settings=s), remove_taken)[0, 0]
+        return obs
 
     # ----- own updates ------------------------------------------------------------------------------
     def set_position(self, step: int, cell: tuple[int, int], on_target: bool = False) -> None:
@@ -383,7 +388,7 @@ class Knowledge:
         if old < 0 or int(step) >= int(old) >> 25:  # the stored step (stack.position_key)
             self._position[self.vehicle_id] = position_key(step, cell, on_target)
 
-    def sense(self, cells, phi, obstacle) -> int:
+    def sense(self, cells: npt.ArrayLike, phi: npt.ArrayLike, obstacle: npt.ArrayLike) -> int:
         """Own observation of `cells` (N, 2) with their true phi (float) and obstacle flags.
 
         Returns how many of them were newly explored; those are queued for the next `take_delta`."""
@@ -426,7 +431,7 @@ class Knowledge:
         step, cell, on_target = split_key(key) if key >= 0 else (0, None, False)
         return Delta(self.vehicle_id, step, cell, on_target, cells, self.phi_q[x, y], self.obstacle[x, y])
 
-    def add_targets(self, cells, step: int) -> None:
+    def add_targets(self, cells: npt.ArrayLike, step: int) -> None:
         """Target cells reported at `step` (each keeps its earliest step)."""
         c = _cells_array(cells)
         self._check_cells(c)
@@ -487,7 +492,7 @@ class Knowledge:
             and self.targets == other.targets
         )
 
-    __hash__ = None  # mutable
+    # mutable, so unhashable: a class that defines __eq__ and not __hash__ gets __hash__ = None
 
     def __repr__(self) -> str:
         return (
@@ -598,11 +603,12 @@ def beliefs_from_knowledge(
     )
 
 
-def stacked_field(knowledges: list[Knowledge], name: str, fill=None) -> np.ndarray:
+def stacked_field(knowledges: list[Knowledge], name: str, fill: int | None = None) -> np.ndarray:
     """(A, ...) the stack arrays `name` of the knowledges' rows: one gather when they share a stack."""
     stack = knowledges[0]._stack
     if all(k._stack is stack for k in knowledges):
-        return getattr(stack, name)[[k._row for k in knowledges]]
+        gathered: np.ndarray = getattr(stack, name)[[k._row for k in knowledges]]
+        return gathered
     rows = [getattr(k._stack, name)[k._row] for k in knowledges]
     if fill is not None and len({r.size for r in rows}) > 1:  # position rows of different widths
         width = max(r.size for r in rows)

@@ -106,21 +106,23 @@ class KnowledgeStack:
         np.maximum.at(self.position, (ri, senders[mi]), keys[mi])
         deltas = [i for i, m in enumerate(messages) if isinstance(m, Delta)]
         detections = [i for i, m in enumerate(messages) if not isinstance(m, Delta)]
+        delta_messages = [m for m in messages if isinstance(m, Delta)]  # in the order of `deltas`
+        detection_messages = [m for m in messages if not isinstance(m, Delta)]  # of `detections`
         if deltas:
-            cells = [messages[i].cells for i in deltas]
+            cells = [m.cells for m in delta_messages]
             x, y, owner = self._cells(cells, deltas)
             ci, ri = np.nonzero(receivers[owner])
             if ci.size:
                 xs, ys = x[ci], y[ci]
-                phi = np.concatenate([messages[i].phi for i in deltas])
-                obstacle = np.concatenate([messages[i].obstacle for i in deltas])
+                phi = np.concatenate([m.phi for m in delta_messages])
+                obstacle = np.concatenate([m.obstacle for m in delta_messages])
                 self.explored[ri, xs, ys] = True
                 np.maximum.at(self.phi_q, (ri, xs, ys), phi[ci])
                 hit = obstacle[ci]
                 self.obstacle[ri[hit], xs[hit], ys[hit]] = True
         if detections:
-            x, y, owner = self._cells([messages[i].targets for i in detections], detections)
-            steps = np.array([messages[i].step for i in detections], dtype=np.int64)
+            x, y, owner = self._cells([m.targets for m in detection_messages], detections)
+            steps = np.array([m.step for m in detection_messages], dtype=np.int64)
             ci, ri = np.nonzero(receivers[owner])
             if ci.size:
                 np.minimum.at(self.target_step, (ri, x[ci], y[ci]), steps[np.searchsorted(detections, owner[ci])])

@@ -51,7 +51,9 @@ def poll_all(exchanges: Sequence[KnowledgeExchange]) -> int:
     how many messages they handled in all."""
     if not batchable(exchanges):
         return sum(ex.poll(0.0) for ex in exchanges)
-    batch = exchanges[0].bus._batch
+    bus = exchanges[0].bus
+    assert bus is not None and bus._batch is not None  # batchable
+    batch = bus._batch
     batch.flush()
     handled = 0
     for ex in exchanges:
@@ -71,7 +73,8 @@ def step_all(
     time by `then(i)` (e.g. the agent's detections); batched when `batchable`, else one by one."""
     if not batchable(exchanges):
         for i, ex in enumerate(exchanges):
-            c, p, o = sensed[i] if sensed[i] is not None else (None, None, None)
+            s = sensed[i]
+            c, p, o = s if s is not None else (None, None, None)
             ex.step(step, cells[i], on_target[i], c, p, o)
             if then is not None:
                 then(i)
@@ -135,7 +138,7 @@ def _step_arrays(
     own = stack.position[rows, vids].tolist()
     deltas = []
     for i, ex in enumerate(exchanges):
-        pos = split_key(own[i]) if own[i] >= 0 else (0, None, False)
+        pos: tuple[int, tuple[int, int] | None, bool] = split_key(own[i]) if own[i] >= 0 else (0, None, False)
         a, b = bounds[i], bounds[i + 1]
         deltas.append(Delta(ex.vehicle_id, *pos, found[a:b], phi[a:b], obstacle[a:b]))
     return deltas

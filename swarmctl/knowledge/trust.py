@@ -139,7 +139,7 @@ class KnowledgeTrust:
     def own(self, vehicle: int, step: int, cell: tuple[int, int] | None) -> None:
         """The receiver's own position at `step` (its own messages are never admitted: echoes)."""
         self.advance(step)
-        if cell is not None and self._track.setdefault(int(vehicle), _Track()).add(int(step), tuple(cell)):
+        if cell is not None and self._track.setdefault(int(vehicle), _Track()).add(int(step), (cell[0], cell[1])):
             self._reach = None
 
     def admit(self, message: Report, sysid: int | None = None) -> bool:

@@ -89,6 +89,7 @@ class CityMaps:
                 best, best_cover = crop, cover
                 if cover >= 2 * fraction:
                     break
+        assert best is not None  # the first crop's cover beats -1
         crop = best
         built = crop[crop > 0]
         if built.size == 0:

@@ -233,7 +233,7 @@ def _stop_on_signals():
     """SIGINT / SIGTERM ask the training to stop after its round and save what --resume needs."""
     import signal
 
-    asked = []
+    asked: list[int] = []
 
     def handler(signum, _frame):
         if asked:  # a second signal: stop now

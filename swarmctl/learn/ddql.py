@@ -31,7 +31,8 @@ from swarmctl.learn.replay import ReplayMemory
 from swarmctl.learn.train_config import TrainConfig
 from swarmctl.policy.base import allowed_moves, softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, model_reference, save_checkpoint
-from swarmctl.policy.qnet import QNetwork, make_network
+from swarmctl.policy.fused import to_memory_format
+from swarmctl.policy.qnet import GlobalLocalQNetwork, QNet, QNetwork, make_network
 from swarmctl.world.beliefs import VARIANT_CHANNELS
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.env import SearchEnv
@@ -48,13 +49,19 @@ def explore(
     if allowed is not None:
         q = np.where(allowed, q, -np.inf)
     if cfg.exploration == "softmax":
-        return softmax_sample(q, value, rng.random(q.shape[0]))
+        return softmax_sample(q, value, rng.random(len(q)))
     greedy = q.argmax(axis=1)
     if allowed is None:
-        random = rng.integers(0, q.shape[1], size=q.shape[0])
+        random = rng.integers(0, q.shape[1], size=len(q))
     else:  # uniform among the allowed moves
-        random = softmax_sample(np.where(allowed, 0.0, -np.inf), 1.0, rng.random(q.shape[0]))
-    return np.where(rng.random(q.shape[0]) < value, random, greedy)
+        random = softmax_sample(np.where(allowed, 0.0, -np.inf), 1.0, rng.random(len(q)))
+    return np.where(rng.random(len(q)) < value, random, greedy)
+
+
+def _observed(obs: np.ndarray | None) -> np.ndarray:
+    """The observations a SearchEnv made with observations=True (as every one here) returns."""
+    assert obs is not None
+    return obs
 
 
 def rule_mask(env: SearchEnv) -> np.ndarray:
@@ -102,7 +109,7 @@ def greedy_eval(
     deployment rules when cfg.rules); `blocked`: every episode on that fixed map."""
     steps = cfg.eval_steps if steps is None else steps
     env = SearchEnv(world, batch=cfg.eval_episodes if episodes is None else episodes, stop_at_success=True)
-    obs = env.reset(seed=cfg.eval_seed, blocked=blocked)
+    obs = _observed(env.reset(seed=cfg.eval_seed, blocked=blocked))
     rng = np.random.default_rng(cfg.eval_seed)
     for _ in range(steps):
         if env.done.all():
@@ -112,7 +119,8 @@ def greedy_eval(
         if cfg.rules:
             q = np.where(rule_mask(env), q, -np.inf)
         actions = softmax_sample(q, cfg.eval_tau, rng.random(q.shape[0])).reshape(env.batch, env.uavs)
-        obs, _, _, _ = env.step(actions)
+        step_obs, _, _, _ = env.step(actions)
+        obs = _observed(step_obs)
     duration = np.where(env.done, env.duration, steps)
     return {"success_rate": float(env.done.mean()), "mean_steps": float(duration.mean())}
 
@@ -134,7 +142,7 @@ def held_out_eval(
 
 
 def gradient_step(
-    q_net: QNetwork, target_net: QNetwork, optimizer: torch.optim.Optimizer, batch: tuple, cfg: TrainConfig
+    q_net: QNet, target_net: QNet, optimizer: torch.optim.Optimizer, batch: tuple, cfg: TrainConfig
 ) -> torch.Tensor:
     """One double-DQN gradient step on a minibatch (o, a, r, o'); returns the loss (a tensor on the
     device, not read here).
@@ -220,7 +228,7 @@ def train(
     dev = torch.device(device)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0xD0]))
     curriculum = Curriculum(CURRICULA[cfg.curriculum], world, seed) if cfg.curriculum else None
-    held_out = held_out_worlds(world, cfg.curriculum) if curriculum else None
+    held_out = held_out_worlds(world, cfg.curriculum) if cfg.curriculum else None  # as curriculum
 
     # networks, optimiser, replay
     if init is not None:
@@ -233,9 +241,9 @@ def train(
     # channels-last activations: oneDNN's convolutions run a gradient step 1.4x faster in that layout
     # and each convolution with its ReLU in one primitive, without page faults on every gradient step's
     # activations (learn.kernels)
-    fuse_conv_relu(q_net.to(dev, memory_format=LAYOUT))
+    fuse_conv_relu(to_memory_format(q_net, LAYOUT, dev))
     keep_freed_memory()
-    target_net = copy.deepcopy(q_net).to(dev, memory_format=LAYOUT)
+    target_net = to_memory_format(copy.deepcopy(q_net), LAYOUT, dev)
     optimizer = torch.optim.RAdam(q_net.parameters(), lr=cfg.lr)
     obs_shape = (VARIANT_CHANNELS[world.variant], world.window, world.window)
     replay = ReplayMemory(cfg.replay_capacity, obs_shape, seed=seed, device=dev)
@@ -249,12 +257,12 @@ def train(
         reset to episodes first..first+n-1; returns it, its observations and the episode length."""
         if curriculum is None:
             env = SearchEnv(world, batch=n, stop_at_success=False)
-            return env, env.reset(seed, range(first, first + n)), cfg.episode_lengths[round_index % 2]
+            return env, _observed(env.reset(seed, range(first, first + n))), cfg.episode_lengths[round_index % 2]
         for attempt in range(10):
             w = curriculum.world(round_index, at, attempt)
             env = SearchEnv(w.cfg, batch=n, stop_at_success=False)
             try:
-                return env, env.reset(seed, range(first, first + n), w.blocked), w.steps
+                return env, _observed(env.reset(seed, range(first, first + n), w.blocked)), w.steps
             except ScenarioError:  # one of its episodes cannot be drawn: take the round's next world
                 continue
         raise ScenarioError(f"the curriculum drew 10 worlds for round {round_index} that its episodes do not fit")
@@ -268,7 +276,8 @@ def train(
         env, obs, length = start_round(-1 - round_index, state.episodes_done / cfg.episodes, n, first)
         for _ in range(length):
             actions = rng.integers(0, 5, size=(n, env.uavs))
-            next_obs, reward, _, _ = env.step(actions)
+            step_obs, reward, _, _ = env.step(actions)
+            next_obs = _observed(step_obs)
             replay.add(obs.reshape(-1, *obs_shape), actions.ravel(), reward.ravel(), next_obs.reshape(-1, *obs_shape))
             obs = next_obs
         done_prefill += n
@@ -302,12 +311,12 @@ def train(
             "train_samples_per_cpu_s": round(state.samples / max(state.train_cpu_seconds, 1e-9), 1),
             "evals": state.evals,
             "final_eval": state.evals[-1] if state.evals else None,
-            "init": model_reference(init, init_info) if init else None,
+            "init": model_reference(init, init_info) if init and init_info else None,  # (given together)
             "init_metadata": init_info["metadata"] if init_info else None,
             "torch": str(torch.__version__),
             "device": str(dev),
         }
-        saved = copy.deepcopy(q_net).cpu().to(memory_format=torch.contiguous_format)
+        saved = to_memory_format(copy.deepcopy(q_net).cpu(), torch.contiguous_format)
         snapshot = None
         if resume_state:
             state.wall_seconds = wall
@@ -334,9 +343,9 @@ def train(
             with torch.inference_mode():
                 q = q_net(obs_t).cpu().numpy()
             actions = explore(q, cfg, explore_value, rng, rule_mask(env) if cfg.rules else None).reshape(p, env.uavs)
-            next_obs, reward, success, _ = env.step(actions)
+            step_obs, reward, success, _ = env.step(actions)
             succeeded |= success
-            next_t = torch.from_numpy(next_obs.reshape(-1, *obs_shape)).to(dev)
+            next_t = torch.from_numpy(_observed(step_obs).reshape(-1, *obs_shape)).to(dev)
             replay.add(obs_t, actions.ravel(), reward.ravel(), next_t)
             obs_t = next_t
             state.joint_steps += 1
@@ -405,10 +414,10 @@ def train(
     return metadata  # the evaluation after the last round saved the final checkpoint
 
 
-def _transplant(source: torch.nn.Module, target: torch.nn.Module, path: Path) -> torch.nn.Module:
+def _transplant(source: QNet, target: QNet, path: Path) -> QNet:
     """Start a global-local network from a paper network's local convolutions (the same layers on the
     same three channels); the whole-map branch and the head start fresh."""
-    if not (hasattr(source, "features") and hasattr(target, "local")):
+    if not (isinstance(source, QNetwork) and isinstance(target, GlobalLocalQNetwork)):  # features, local
         raise InputError(f"--init {path}: a {source.variant} network cannot start a {target.variant} one")
     target.local.load_state_dict(source.features.state_dict())
     return target

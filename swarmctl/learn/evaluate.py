@@ -14,6 +14,7 @@ episode and `mean_first_find_steps`; `covered` adds `covered_fraction` and `mean
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import numpy as np
 from tqdm import tqdm
@@ -33,7 +34,7 @@ def _chunks(episodes: int, chunk: int):
         yield start, min(chunk, episodes - start)
 
 
-def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) -> list[dict]:
+def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) -> list[dict[str, Any]]:
     """One record per episode of `env` as it ended: `episode` (its index), `steps`, `success`,
     `on_target` (per vehicle, the index of the target whose cell it ends on, or None), `searching`
     (the vehicles without a target of their own: off any target, or sharing one with a
@@ -60,7 +61,7 @@ def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) 
         distance[lone] = np.where(d >= UNREACHABLE, -1, d)
     finish = env.cfg.finish
     covered = env.covered_fraction() if finish == "covered" else None
-    records = [
+    records: list[dict[str, Any]] = [
         {
             "episode": int(env.episodes[b]),
             "steps": int(durations[b]),
@@ -72,12 +73,12 @@ def episode_records(env: SearchEnv, durations: np.ndarray, success: np.ndarray) 
         }
         for b in range(env.batch)
     ]
-    for b, record in enumerate(records):
+    for i, record in enumerate(records):
         if finish == "found":
-            steps = np.sort(env.found_step[b])
+            steps = np.sort(env.found_step[i])
             record["found_steps"] = [int(s) for s in steps[steps >= 0]] + [None] * int((steps < 0).sum())
-        elif finish == "covered":
-            record["covered_fraction"] = float(covered[b])
+        elif covered is not None:  # finish "covered"
+            record["covered_fraction"] = float(covered[i])
     return records
 
 
@@ -105,7 +106,8 @@ def run_policy(
     policy = make_policy(spec)
     check_finish(cfg, policy)
     held = cfg.finish == "held"
-    durations, successes, oracle, records = [], [], [], []
+    durations, successes, oracle = [], [], []
+    records: list[dict[str, Any]] = []
     collisions = 0
     act_seconds, decisions = 0.0, 0
     bar = tqdm(total=episodes, desc=f"{spec:>12}", unit="ep", disable=not progress, leave=False)
@@ -157,7 +159,9 @@ def run_policy(
         "mean_steps": float(d.mean()),
         "steps_cdf": cdf,
         "oracle_mean_steps": mean_oracle,
-        "duration_ratio_to_oracle": float(d.mean() / mean_oracle) if held and mean_oracle > 0 else None,
+        "duration_ratio_to_oracle": float(d.mean() / mean_oracle)
+        if mean_oracle is not None and mean_oracle > 0
+        else None,
         "collisions_per_episode": collisions / episodes,
         "decision_ms_per_vehicle": (1000.0 * act_seconds / decisions) if decisions else None,
     }

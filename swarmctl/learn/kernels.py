@@ -51,6 +51,8 @@ def twin_forward(online: nn.Module, target: nn.Module, obs: torch.Tensor) -> tup
     x = obs
     pairs = [(a, b) for a, b in zip(online.features, target.features) if isinstance(a, nn.Conv2d)]
     for i, (a, b) in enumerate(pairs):
+        assert isinstance(b, nn.Conv2d) and a.bias is not None and b.bias is not None  # the same architecture
+        assert not isinstance(a.padding, str)  # numbers: the paper's convolutions
         weight, bias = torch.cat([a.weight, b.weight]), torch.cat([a.bias, b.bias])
         x = conv_relu(x, weight, bias, list(a.stride), list(a.padding), groups=1 if i == 0 else 2)
     half = x.shape[1] // 2

@@ -146,12 +146,13 @@ class Connector:
     ) -> Vehicle:
         """Build autopilot's driver (on `link`, or on the endpoint for drivers with their own connection)
         and connect it within the time left; it is closed again if that fails."""
+        driver: Callable[..., Vehicle] = autopilot.driver  # each firmware's driver takes its own arguments
         if autopilot.own_connection:
             if self.signing_key is not None and not autopilot.signs_link:
                 log.warning("%s: %s signing is %s", name, autopilot.label, autopilot.signing)
-            vehicle = autopilot.driver(endpoint, sysid=sysid, name=name, telemetry_rate_hz=self.telemetry_hz)
+            vehicle = driver(endpoint, sysid=sysid, name=name, telemetry_rate_hz=self.telemetry_hz)
         else:
-            vehicle = autopilot.driver(link, sysid, name=name, telemetry_rate_hz=self.telemetry_hz)
+            vehicle = driver(link, sysid, name=name, telemetry_rate_hz=self.telemetry_hz)
         try:
             await vehicle.connect(_left(deadline))
         except BaseException:

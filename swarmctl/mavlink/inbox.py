@@ -54,8 +54,9 @@ class Inbox:
         self._scheduled = False
         self._links: dict[MavlinkLink, None] = {}  # open links, in the order they were opened
         self._watchdog: asyncio.TimerHandle | None = None
-        self._sockets: selectors.BaseSelector | None = None  # the UDP links' sockets (data: the link)
+        self._sockets: selectors.DefaultSelector | None = None  # the UDP links' sockets (data: the link)
         self._watching = False  # the loop watches self._sockets
+        self._check_failed: weakref.WeakSet[MavlinkLink] = weakref.WeakSet()  # links whose watchdog check failed
 
     def read(self, link: MavlinkLink, sock: socket.socket) -> bool:
         """Read `sock` (a UDP link's) at each drain; False where this platform's selectors cannot be
@@ -143,7 +144,9 @@ class Inbox:
                         shared[cb] += accepted
                     else:
                         shared[cb] = list(accepted)
-        call_batch_listeners(shared)
+        for cb in call_batch_listeners(shared):  # reported; not called again, on any link of the loop
+            for link in {**self._links, **batches}:
+                link.remove_listener(cb)
 
     def _read_ready(self) -> list[tuple[MavlinkLink, list]]:
         """The ready UDP sockets' datagrams, parsed, per link in their order: in passes of one datagram
@@ -198,17 +201,30 @@ class Inbox:
         for link in list(self._links):
             try:
                 link._check_heartbeats(now)
-            except Exception:  # one link's failure must not stop the watch of the others
-                log.exception("link watchdog failed")
+            except Exception as exc:  # one link's failure must not stop the watch of the others
+                if link not in self._check_failed:  # one line a link, not ten a second
+                    self._check_failed.add(link)
+                    log.error("%s: the link watchdog failed: %s: %s", link.endpoint, type(exc).__name__, exc)
+                    log.debug("the watchdog's traceback", exc_info=exc)
         self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check) if self._links else None
 
 
-def call_batch_listeners(batches: dict[Callable[[list], None], list]) -> None:
+def call_batch_listeners(batches: dict[Callable[[list], None], list]) -> list[Callable[[list], None]]:
+    """Each batch listener with its messages; returns those that raised, each reported in one error line
+    (no traceback: that is logged at DEBUG). A batch listener (the recorder's tap, the loss counter)
+    takes the messages of several vehicles at once, so no one vehicle is judged silent for it (a
+    per-message listener's failure silences its vehicle: MavlinkLink._listener_failed); the caller stops
+    calling it instead, so it is reported once, not once a batch."""
+    failed = []
     for cb, msgs in batches.items():
         try:
             cb(msgs)
-        except Exception:  # a listener's bug must not stop the link
-            log.exception("MAVLink listener failed")
+        except Exception as exc:  # a listener's bug must not stop the link
+            name = getattr(cb, "__qualname__", None) or type(cb).__name__
+            log.error("MAVLink batch listener %s failed: %s: %s; it is not called again", name, type(exc).__name__, exc)
+            log.debug("the listener's traceback", exc_info=exc)
+            failed.append(cb)
+    return failed
 
 
 _inboxes: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, Inbox] = weakref.WeakKeyDictionary()

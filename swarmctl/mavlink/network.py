@@ -188,6 +188,10 @@ class MavlinkLink:
         self._batch_listeners: tuple[Callable[[list], None], ...] = ()
         self._route: dict[str, tuple[Callable[[Any], None], ...]] = {}  # message type -> all its listeners
         self._link_callbacks: list[Callable[[int, str], None]] = []
+        # system id -> why it is silent: a listener failed on its message (_listener_failed); its messages
+        # reach no listener, peer or waiter again, and it stays lost
+        self.silenced: dict[int, str] = {}
+        self._failed_listeners: set[str] = set()  # the listeners reported (one line each)
         self._waiters: list[tuple[Callable[[Any], bool], asyncio.Future]] = []
         self._bad_logged = -1e9
         self.console = b""  # the first CONSOLE_KEEP bytes of console text (see _console_text)
@@ -241,7 +245,7 @@ class MavlinkLink:
         if self._inbox is not None:
             self._inbox.unwatch(self)
         self._stop.set()
-        if self._reading is not None:
+        if self._reading is not None and self._inbox is not None:  # (read through the inbox)
             self._inbox.unread(self._reading)
             self._reading = None
         if self._thread is not None:
@@ -349,7 +353,8 @@ class MavlinkLink:
         """Messages of this link to their listeners, then to its batch listeners."""
         accepted = self._deliver(msgs)
         if accepted:
-            call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted))
+            for cb in call_batch_listeners(dict.fromkeys(self._batch_listeners, accepted)):
+                self.remove_listener(cb)  # reported once: not called again
 
     def _deliver(self, msgs: list) -> list:
         """Messages of this link to its per-message listeners (and peers, waiters); the valid ones."""
@@ -373,6 +378,8 @@ class MavlinkLink:
             self._framed = True
             stats.received += 1
             src, mtype = header.srcSystem, msg._type  # _type: what get_type() returns
+            if self.silenced and src in self.silenced:
+                continue  # recorded (the batch listeners have it), never followed again
             if mtype == "HEARTBEAT":
                 self._heartbeat(msg, src, now)
             peer = peers.get(src)
@@ -387,11 +394,42 @@ class MavlinkLink:
             for cb in cbs:  # the listeners now (one may add another)
                 try:
                     cb(msg)
-                except Exception:  # a listener's bug must not stop the link
-                    log.exception("MAVLink listener failed")
-            if self._waiters:
-                self._check_waiters(msg)
+                except Exception as exc:  # a listener's bug must not stop the link
+                    self._listener_failed(cb, mtype, src, exc)
+                    break
+            else:
+                if self._waiters:
+                    self._check_waiters(msg)
         return accepted
+
+    def _listener_failed(self, cb: Callable[[Any], None], mtype: str, src: int, exc: Exception) -> None:
+        """A listener raised on a message of type `mtype` from system `src`: that vehicle is judged as the
+        watchdog judges a silent one (lost, its "lost" event given), and kept so: what a listener of its
+        messages cannot take, the controller cannot follow, so its messages reach no listener, peer or
+        waiter again (its heartbeats do not bring it back; the recording still has them). One error line
+        per listener and vehicle (no traceback: that is logged at DEBUG), never one per message."""
+        name = getattr(cb, "__qualname__", None) or type(cb).__name__
+        why = f"{name} failed on its {mtype}: {type(exc).__name__}: {exc}"
+        self.silenced[src] = why
+        if src in self.expected or name not in self._failed_listeners:
+            self._failed_listeners.add(name)
+            log.error(
+                "%s: MAVLink listener %s failed on %s from system %d: %s: %s; vehicle %d is treated as "
+                "silent (lost, left to its failsafe) from now on",
+                self.endpoint,
+                name,
+                mtype,
+                src,
+                type(exc).__name__,
+                printable(str(exc)),
+                src,
+            )
+            log.debug("the listener's traceback", exc_info=exc)
+        peer = self.peers.get(src)  # none: it is lost already (is_lost)
+        if peer is not None and not peer.lost:
+            peer.lost = True
+            if src in self.expected:
+                self._link_event(peer, "lost")
 
     def _routes(self, mtype: str) -> tuple[Callable[[Any], None], ...]:
         """The listeners of one message type, in the order they are called (those for every message
@@ -570,6 +608,7 @@ class MavlinkLink:
         """A vehicle whose last heartbeat is more than lost_after old is lost (called every WATCHDOG_S)."""
         for p in list(self.peers.values()):
             if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
+                # _listener_failed judges a vehicle whose listener failed the same way
                 p.lost = True
                 if p.sysid in self.expected:
                     self._link_event(p, "lost")

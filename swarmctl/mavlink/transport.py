@@ -123,7 +123,7 @@ class UdpTransport(Transport):
                 return addr
             count[vehicle] = count.get(vehicle, 0) + 1
         for addr, vehicle in sources.items():
-            if count[vehicle] > 1:
+            if vehicle is not None and count[vehicle] > 1:  # (none is None here: the loop above returned)
                 return addr
         return next(iter(sources))
 

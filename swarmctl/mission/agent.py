@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from swarmctl.knowledge.exchange import KnowledgeExchange
     from swarmctl.knowledge.model import Knowledge
+    from swarmctl.mavlink.codec import Endpoint
     from swarmctl.mission.detector import SensorFeed
     from swarmctl.mission.spec import VehicleSpec
 
@@ -77,10 +78,10 @@ class Agent:
         self,
         index: int,
         spec: VehicleSpec,
-        vehicle: Any,
+        vehicle: Any,  # a Vehicle; a connect.NotConnected until it is connected (duck-typed: a few fields)
         exchange: KnowledgeExchange,
         feed: SensorFeed,
-        detector: Any = None,
+        detector: Endpoint | str | None = None,
     ):
         self.index, self.spec, self.vehicle = index, spec, vehicle
         self.exchange, self.feed = exchange, feed
@@ -99,6 +100,7 @@ class Agent:
         self.error: str | None = None
         self.status: str | None = None  # the latest preflight note (launch.note): what the vehicle says
         self.notes: dict[str, float] = {}  # preflight note -> when it was last shown (time.monotonic())
+        self.failsafes: dict | None = None  # kind -> failsafes.Failsafe, once read at preflight (failsafes.py)
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
         self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
@@ -116,6 +118,13 @@ class Agent:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def here(self) -> tuple[int, int]:
+        """Its cell, where it must be known: a vehicle searching, guarded or sensing has one (`cell` is
+        None only before its first position)."""
+        assert self.cell is not None, f"{self.name}: no cell yet"
+        return self.cell
 
     @property
     def live(self) -> bool:

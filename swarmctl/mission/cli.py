@@ -2,23 +2,27 @@
 
 Exit status: 0 mission complete (its finish line met: by default every live vehicle hovered on a
 distinct target; `[mission] finish`, swarmctl.mission.finish), 1 it ran but did not complete (time
-limit, vehicles failed, the search ended short of its finish line), 2 bad input, 130 interrupted (after
-the end actions, with the recording closed).
+limit, vehicles failed, the search ended short of its finish line), 2 bad input, or part of the
+recording could not be written (a full disk: whatever the outcome, every vehicle given its end action;
+docs/recording.md), 130 interrupted (after the end actions, with the recording closed).
 """
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
 import swarmctl
 from swarmctl.bounds import SEED, new_recording_folder, real, whole
 from swarmctl.errors import EXIT_FAILED, InputError
-from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, ON_FIND, MissionTable, TimingTable
+from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, ON_FIND, MissionSpec, MissionTable, TimingTable
 from swarmctl.world.config import CHANNELS, FINISHES
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.mission.decide import FieldPolicy
 
 ROOT = Path(swarmctl.__file__).resolve().parent.parent
 DEMO_GRID = Path("missions/chicago-loop/grid.npz")
@@ -26,7 +30,7 @@ DEMO_GRID = Path("missions/chicago-loop/grid.npz")
 # the coordinated planner (docs/RESULTS.md). The networks, trained on 20 x 20 maps, find every target
 # far less often there; `--policy ddql:models/obstacles-3uav.pt:straggler=frontier` flies the best of them.
 DEMO_POLICY = "coordinated"
-DEMO_FIGURES = dict(rate="0.98", networks="0.29-0.42")  # tools/planner_table.py, docs/RESULTS.md
+DEMO_FIGURES = dict(rate="1.00", networks="0.10-0.33")  # tools/planner_table.py, docs/RESULTS.md
 DEMO_WHY = (
     "flying the coordinated planner, the best measured policy on this grid: it finds all 3 targets in "
     "{rate} of held-out searches within 300 steps, against {networks} for the shipped networks (docs/RESULTS.md)"
@@ -40,7 +44,7 @@ def _find(relative: Path) -> Path | None:
     return None
 
 
-def default_policy(seed: int = 0) -> tuple[Any, str]:
+def default_policy(seed: int = 0) -> tuple[FieldPolicy, str]:
     """The demo's FieldPolicy (the coordinated planner) and why it flies that one."""
     from swarmctl.mission.decide import FieldPolicy
 
@@ -57,9 +61,11 @@ def _out_folder(out: Path | None, name: str) -> Path:
 def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
     if not quiet:
         found = len(summary["targets_found"])
+        lost = summary.get("recording_lost") or {}
+        cut = f" (incomplete: {', '.join(lost)} not written to the end)" if lost else ""
         click.echo(
             f"{summary['outcome']}: {found} target{'s' if found != 1 else ''} found, "
-            f"{summary['steps']} steps in {summary['search_time_s']:.1f} s; recording in {folder}"
+            f"{summary['steps']} steps in {summary['search_time_s']:.1f} s; recording in {folder}{cut}"
         )
     if code:
         raise click.exceptions.Exit(code)
@@ -211,7 +217,7 @@ def demo_command(
     if mission_file is not None:
         base = load_spec(mission_file)
         grid = load_grid(base)
-        at = dict(mission_id=base.mission.id, altitude=base.mission.altitude)
+        at: dict[str, Any] = dict(mission_id=base.mission.id, altitude=base.mission.altitude)
     else:
         grid_file = _find(DEMO_GRID)
         if grid_file is None:
@@ -241,13 +247,15 @@ def demo_command(
             swarm.targets = hide_targets(grid, targets, seed, swarm.starts)
     except ValueError as exc:
         raise InputError(f"demo: {exc}; use fewer --uavs or another grid") from None
+    hidden = swarm.targets
+    assert hidden is not None  # drawn by SimSwarm
     with swarm:
         plan = swarm.plan(field_policy, base=base, mission_file=mission_file, **settings)
         if note and not quiet:
             click.echo(f"demo: {note}", err=True)
         if not quiet:
             click.echo(
-                f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(swarm.targets)} "
+                f"demo: {uavs} mock vehicles at {grid.width} x {grid.height} cells, {len(hidden)} "
                 f"hidden targets (seed {seed}){', no detectors: a coverage search' if no_detectors else ''}, "
                 f"policy {field_policy.spec}, knowledge channel {channel}, speed-up {speedup:g}x"
                 f"{_finish_text(plan.spec.mission)}"
@@ -260,18 +268,18 @@ def demo_command(
             folder,
             LiveView(live=not no_live, quiet=quiet),
             extra_summary=lambda c: {
-                "hidden_targets": swarm.targets.tolist(),
+                "hidden_targets": hidden.tolist(),
                 "speedup": speedup,
                 "seed": seed,
                 "knowledge_bus": c.bus.counters(),
             },
+            extra_files={"mission.png": lambda at: draw_mission(at, grid, swarm.targets)},
         )
-    draw_mission(folder, grid, swarm.targets)
     _finish(code, folder, summary, quiet)
 
 
 def _finish_options(
-    base: Any, uavs: int, finish: str | None, expected: int | None, on_find: str | None
+    base: MissionSpec | None, uavs: int, finish: str | None, expected: int | None, on_find: str | None
 ) -> dict[str, Any]:
     """The demo's finish-line options as mission settings (those given only), checked with the
     --mission file's as the options name them: on_find mark with finish held, and more targets to hold
@@ -296,7 +304,7 @@ def _finish_options(
     return {k: v for k, v in out.items() if v is not None}
 
 
-def _finish_text(m: Any) -> str:
+def _finish_text(m: MissionTable) -> str:
     """The finish line for the demo's first line ("" for the default)."""
     if m.finish == "held" and m.expected_targets is None and m.on_find == "hold":
         return ""
@@ -317,6 +325,7 @@ def _finish_text(m: Any) -> str:
 @view_options
 def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
     """Fly a mission with real vehicles (ground mode: this process flies every vehicle)."""
+    from swarmctl.mission import failsafes
     from swarmctl.mission.plan import make_plan
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
@@ -324,7 +333,7 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
     spec = load_spec(mission_file)
     folder = _out_folder(out, spec.mission.name)  # the command line before the mission's contents
     plan = make_plan(spec, seed=seed, mission_file=mission_file)
-    for line in describe(plan):
+    for line in [*describe(plan), *failsafes.describe(plan)]:
         click.echo(line)
     if not yes and not click.confirm("Fly this mission?", default=False):
         click.echo("not flown", err=True)
@@ -365,6 +374,7 @@ def agent_command(
 ) -> None:
     """Onboard mode: fly one vehicle (on its companion computer); peers over the [knowledge] channel,
     which the mission must give."""
+    from swarmctl.mission import failsafes
     from swarmctl.mission.plan import make_plan
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
@@ -372,7 +382,7 @@ def agent_command(
     spec = load_spec(mission_file)
     folder = _out_folder(out, f"{spec.mission.name}-{'-'.join(vehicles)}")  # the command line first
     plan = make_plan(spec, only=list(vehicles), detector=detector, seed=seed, mission_file=mission_file)
-    for line in describe(plan):
+    for line in [*describe(plan), *failsafes.describe(plan)]:
         click.echo(line)
     if not yes and not click.confirm("Fly?", default=False):
         click.echo("not flown", err=True)

@@ -66,7 +66,7 @@ class Controller:
         self.rec = recorder
         self.view = view
         self.grid = plan.grid
-        self.guard = SafetyGuard(self.grid.blocked, plan.spec.mission.altitude)
+        self.guard = SafetyGuard(self.grid.blocked, plan.altitude)
         self.fence = fence_polygon(self.grid) if plan.spec.mission.fence else None  # (lat, lon) vertices
         self.policy = plan.policy
         self.agents: list[Agent] = []
@@ -263,13 +263,19 @@ class Controller:
             self.outcome = "interrupted" if self.stopping else "failed"
         self.ended = time.monotonic()
         self.on_targets = [a.cell for a in self.agents if a.state is State.HOVER and a.cell is not None]
-        self.finish.close(self, self.outcome)
-        for a in self.agents:
-            if a.rejoin_task is not None:
-                a.rejoin_task.cancel()
-        await self._settle_tasks()
-        self.rec.event("end", outcome=self.outcome, step=self.step)
-        await asyncio.gather(*(self._end_action(a) for a in self.agents))
+        try:
+            self.rec.ending()  # what follows is written into the space the recording kept for it
+            self.finish.close(self, self.outcome)
+            for a in self.agents:
+                if a.rejoin_task is not None:
+                    a.rejoin_task.cancel()
+            await self._settle_tasks()
+            self.rec.event("end", outcome=self.outcome, step=self.step)
+        finally:  # whatever failed above, every vehicle in the air gets its end action
+            done = await asyncio.gather(*(self._end_action(a) for a in self.agents), return_exceptions=True)
+            for a, result in zip(self.agents, done):
+                if isinstance(result, Exception):  # after its command: only what was recorded of it
+                    log.error("%s: after the end action: %s: %s", a.name, type(result).__name__, result)
         if self.view is not None:
             self.view(self)
 
@@ -301,13 +307,16 @@ class Controller:
         if a.state is State.LOW_BATTERY:
             action = "rtl"
         a.end_action = action
-        self.rec.event("end_action", vehicle=a.name, action=action, cell=a.cell)
+        try:  # nothing the recording raises may keep the command from the vehicle
+            self.rec.event("end_action", vehicle=a.name, action=action, cell=a.cell)
+        except Exception as exc:
+            log.error("%s: the end_action line was not recorded: %s: %s", a.name, type(exc).__name__, exc)
         try:
             if action == "land":
                 await a.vehicle.land()
             elif action == "rtl":
                 await a.vehicle.rtl()
-            wait = timeouts.end(plan.spec.timing.end_timeout, a.vehicle, action, plan.spec.mission.altitude)
+            wait = timeouts.end(plan.spec.timing.end_timeout, a.vehicle, action, plan.altitude)
             if action in ("land", "rtl") and wait > 0:
                 await a.vehicle.wait_landed(wait)
                 a.end_state = "landed at home" if action == "rtl" else "landed"
@@ -360,9 +369,9 @@ class Controller:
         now = self.ended or time.monotonic()
         found: dict[tuple[int, int], int] = {}
         for a in self.agents:
-            for c, s in a.knowledge.targets.items():
-                found[c] = min(found.get(c, s), s)
-        vehicles = []
+            for cell, s in a.knowledge.targets.items():
+                found[cell] = min(found.get(cell, s), s)
+        vehicles: list[dict[str, Any]] = []
         for a in self.agents:
             c = a.exchange.counters()
             vehicles.append(
@@ -407,8 +416,8 @@ class Controller:
             for k, v in self.links.items()
         ]
         # who hovered where when the search ended (a vehicle's end action may have brought it home since)
-        hovering = self.on_targets if self.ended else [a.cell for a in self.agents if a.state is State.HOVER]
-        out = dict(
+        hovering = self.on_targets if self.ended else [a.here for a in self.agents if a.state is State.HOVER]
+        out: dict[str, Any] = dict(
             mission=self.plan.spec.mission.name,
             policy=self.plan.policy.spec,
             outcome=self.outcome,
@@ -432,6 +441,7 @@ class Controller:
             ),
             links=links,
             overhead_ms=self.overhead_ms(),
+            recording_lost=dict(self.rec.lost),  # file -> why it stopped being written (swarmctl.mission.recorder)
         )
         out.update(self.finish.summary(self, self.outcome, out["targets_found"]))
         if extra:

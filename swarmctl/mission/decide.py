@@ -35,7 +35,7 @@ from swarmctl.errors import InputError
 from swarmctl.knowledge.model import PHI_TOLERANCE, Knowledge, beliefs_from_knowledge
 from swarmctl.policy.ddql import DDQLPolicy
 from swarmctl.policy.hover import DEFER, HOVER_RULES, parking
-from swarmctl.policy.registry import make_policy
+from swarmctl.policy.registry import make_decider
 from swarmctl.policy.threads import set_inference_threads
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.taken import remove_taken_targets
@@ -68,12 +68,13 @@ class FieldPolicy:
             raise InputError(
                 f"policy {self.spec!r} cannot fly a mission: it reads the hidden targets; use one of {FIELD_POLICIES}"
             )
-        self.policy = make_policy(self.spec)
+        self.policy = make_decider(self.spec)
         # a mission parks on a target as its spec's `:hover=` says, else as `hover` says (a recording's
         # rule, for replay --verify), else it defers (swarmctl.policy.hover)
-        self.hover = self.policy.hover if re.search(r":hover=", self.spec) else (hover or DEFER)
-        if self.hover not in HOVER_RULES:
-            raise InputError(f"hover rule {self.hover!r} is unknown: use one of {', '.join(HOVER_RULES)}")
+        rule = self.policy.hover if re.search(r":hover=", self.spec) else (hover or DEFER)
+        if not isinstance(rule, str) or rule not in HOVER_RULES:  # (a spec's rule is a name, never a bool)
+            raise InputError(f"hover rule {rule!r} is unknown: use one of {', '.join(HOVER_RULES)}")
+        self.hover = rule
         self.policy.hover = self.hover
         self.hold: int | None = None
         if isinstance(self.policy, DDQLPolicy):

@@ -36,6 +36,7 @@ import logging
 import socket
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -122,7 +123,7 @@ class SensorFeed:
 
     # --- waiting ---------------------------------------------------------------------------------------
     async def wait_report(
-        self, cell: tuple[int, int], since: float, timeout: float, abort: Any = None
+        self, cell: tuple[int, int], since: float, timeout: float, abort: Callable[[], bool] | None = None
     ) -> SensorReport | None:
         """The report for `cell` received after `since` (monotonic), or None after `timeout` s (or as
         soon as `abort()` is true)."""

@@ -350,6 +350,21 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
         "a vehicle's end action failed",
         (_VEHICLE, Field("error", "str", "-", "why")),
     ),
+    "recording_lost": (
+        "events.jsonl",
+        "a file of the recording stopped being written (a write failed: a full disk, a read-only mount, an I/O "
+        "error); written as soon as events.jsonl can take it, at the latest with the mission's end",
+        (
+            Field("file", "str", "-", "the file (`mission.tlog`, `events.jsonl`, `summary.json`, ...)"),
+            Field(
+                "error",
+                "str",
+                "-",
+                "why: the failure (`No space left on device (ENOSPC)`), or `stopped when FILE could not be written`",
+            ),
+            Field("since", "number", "s", "when it stopped (wall clock, seconds since 1970-01-01 UTC)"),
+        ),
+    ),
     "knowledge": (
         "knowledge.jsonl",
         "one vehicle's knowledge after a round, written when it changed since that vehicle's last line",

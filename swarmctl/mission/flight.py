@@ -137,8 +137,8 @@ async def _wait_woken(c: Controller, flights: list[_Flight], sending: list[async
     poll_at = course_at = 0.0
     while True:
         for t in sending:
-            if t.done() and t.exception() is not None:
-                raise t.exception()
+            if t.done() and (exc := t.exception()) is not None:
+                raise exc
         now = time.monotonic()
         poll = now >= poll_at
         if poll:
@@ -206,7 +206,7 @@ async def sense_and_share_all(c: Controller, agents: list[Agent], moved: set[int
         for i, r in zip(waiting, got):
             reports[i] = r
     plain = [i for i, a in enumerate(agents) if arrived[i] and not reports[i]]  # the footprint alone
-    prints = footprints(c.grid, c.plan.fov, [agents[i].cell for i in plain])
+    prints = footprints(c.grid, c.plan.fov, [agents[i].here for i in plain])
     sensed = [Sensed() for _ in agents]
     for i, p in zip(plain, prints):
         sensed[i] = p
@@ -221,7 +221,7 @@ async def sense_and_share_all(c: Controller, agents: list[Agent], moved: set[int
     step_all(
         [a.exchange for a in agents],
         c.step,
-        [a.cell for a in agents],
+        [a.here for a in agents],
         on_target,
         [(s.cells, s.phi, s.obstacle) for s in sensed],
         then,
@@ -231,10 +231,10 @@ async def sense_and_share_all(c: Controller, agents: list[Agent], moved: set[int
 def _arrived(c: Controller, a: Agent, moved: bool) -> bool:
     """Whether the agent senses at its cell this round (it moved there and is not off course); notes
     the visit."""
-    if moved and off_course(c, a, a.cell):
+    if moved and off_course(c, a, a.here):
         moved = False  # steered away before it got there: nothing sensed there (swarmctl.mission.watch)
     if moved:
-        a.visited[a.cell] = c.step
+        a.visited[a.here] = c.step
     return moved
 
 
@@ -242,7 +242,7 @@ async def _wait_reports(c: Controller, a: Agent, since: float) -> list:
     """Wait for the detector's report for the agent's cell (an event when none comes), then every
     report received."""
     report = await a.feed.wait_report(
-        a.cell, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
+        a.here, since, c.plan.spec.timing.sense_timeout, abort=lambda: a.vehicle.lost or c.stopping
     )
     if report is None:
         c.rec.event("no_report", vehicle=a.name, cell=a.cell, step=c.step)

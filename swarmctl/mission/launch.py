@@ -6,8 +6,9 @@ once, the take-offs are spaced by `flight.takeoff_at_once`. Preflight waits unti
 in the mode it is flown in (its driver's `wait_ready`: ArduPilot switches to GUIDED first), showing
 what the vehicle says meanwhile (`note`: an event, a log line, the live view), then reads its speed
 parameters, from which the waits the mission does not set are derived (timeouts.py). A failure fails
-that vehicle only, except a vehicle whose autopilot contradicts the mission file, which stops the
-mission (the file must change).
+that vehicle only, except a vehicle whose autopilot contradicts the mission file, or whose GCS
+failsafe is off where the mission does not allow it (failsafes.py: read first in preflight; no vehicle
+takes off before every one is checked), which stops the mission (the file or the vehicle must change).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from swarmctl.errors import InputError
 from swarmctl.geo.fence import fence_contains
 from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.limits import RESUME_ABOVE_M
-from swarmctl.mission import timeouts
+from swarmctl.mission import failsafes, timeouts
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.flight import fly, nearest_free, sense_and_share
 
@@ -48,14 +49,20 @@ async def connect(c: Controller, a: Agent) -> None:
             timeout=c.plan.spec.timing.connect_timeout,
         )
     except InputError as exc:
-        a.error = str(exc)
-        c.enter(a, State.FAILED, error=a.error)
-        if c.mission_error is None:
-            c.mission_error, c.outcome = exc, "failed"
-        c.stop()
+        refuse(c, a, exc)
         return
     a.vehicle = vehicle
     vehicle.add_listener(a.feed.listener(spec.sysid), ("TUNNEL",))  # the detector's reports, where they come
+
+
+def refuse(c: Controller, a: Agent, exc: InputError) -> None:
+    """The vehicle contradicts the mission file (its autopilot) or the mission's safety rules (its GCS
+    failsafe is off): it fails, and the mission stops with `exc` (one line, exit 2)."""
+    a.error = str(exc)
+    c.enter(a, State.FAILED, error=a.error)
+    if c.mission_error is None:
+        c.mission_error, c.outcome = exc, "failed"
+    c.stop()
 
 
 async def start(c: Controller, a: Agent) -> None:
@@ -67,6 +74,13 @@ async def start(c: Controller, a: Agent) -> None:
         if c.stopping:
             return
         c.enter(a, State.PREFLIGHT)
+        try:
+            await c.until_stopped(failsafes.check(c, a))
+        except InputError as exc:  # its GCS failsafe is off: the mission stops before anything takes off
+            refuse(c, a, exc)
+            return
+        if c.stopping:
+            return
         await c.until_stopped(preflight(c, a))
         if c.stopping:
             return
@@ -82,11 +96,12 @@ async def start(c: Controller, a: Agent) -> None:
             raise MavlinkError(f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the grid")
         if c.fence is not None:
             await upload_fence(c, a, home)
+        await c.until_stopped(failsafes.all_checked(c))  # a refusal stops the mission before any take-off
         async with c.takeoff_slots:
             if c.stopping:
                 return
             c.enter(a, State.TAKEOFF)
-            altitude = c.plan.spec.mission.altitude
+            altitude = c.plan.altitude
             wait = timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
             await c.until_stopped(a.vehicle.arm_and_takeoff(altitude, wait))
             if c.stopping:
@@ -121,9 +136,9 @@ async def preflight(c: Controller, a: Agent) -> None:
     if timing.end_timeout is not None:
         end = timing.end_timeout
     elif m.end_action == "land":
-        end = limits.land_timeout(m.altitude)
+        end = limits.land_timeout(c.plan.altitude)
     else:
-        end = limits.rtl_timeout(across, m.altitude)
+        end = limits.rtl_timeout(across, c.plan.altitude)
     c.rec.event(
         "limits",
         vehicle=a.name,
@@ -133,7 +148,7 @@ async def preflight(c: Controller, a: Agent) -> None:
         climb=round(limits.climb, 3),
         descent=round(limits.descent, 3),
         land_speed=round(limits.land_speed, 3),
-        takeoff_timeout=round(timeouts.takeoff(timing.takeoff_timeout, a.vehicle, m.altitude), 1),
+        takeoff_timeout=round(timeouts.takeoff(timing.takeoff_timeout, a.vehicle, c.plan.altitude), 1),
         step_timeout=round(limits.move_timeout(c.grid.cell) if timing.step_timeout is None else timing.step_timeout, 1),
         end_timeout=round(end, 1),
     )
@@ -190,7 +205,7 @@ async def rejoin(c: Controller, a: Agent) -> None:
                 if a.vehicle.home is None:
                     raise MavlinkError(f"{a.name}: no home position")
                 await upload_fence(c, a, a.vehicle.home)
-            altitude = c.plan.spec.mission.altitude
+            altitude = c.plan.altitude
             async with c.takeoff_slots:
                 await a.vehicle.arm_and_takeoff(altitude, timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude))
         pos = a.vehicle.position

@@ -20,13 +20,18 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
 from swarmctl.knowledge.codec import MAX_CELLS, MAX_SIDE
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.geo.grid import GeoGrid
+    from swarmctl.mission.decide import FieldPolicy
+    from swarmctl.world.channel import Channel
 
 FOOTPRINT_TOLERANCE = 0.25  # cells: how far the footprint may be from the policy's fov
 
@@ -39,15 +44,15 @@ class MissionPlan:
     for simulated swarms, the channel model of the in-process knowledge bus (None: ideal)."""
 
     spec: MissionSpec
-    grid: Any  # swarmctl.geo.GeoGrid
-    policy: Any  # swarmctl.mission.decide.FieldPolicy
+    grid: GeoGrid
+    policy: FieldPolicy
     signing_key: bytes | None = None
     # vehicle index -> its detector: ON_LINK (reports on its MAVLink link) or a local UDP socket
     detectors: dict[int, Endpoint | str] = field(default_factory=dict)
     only: list[int] | None = None
     seed: int = 0
     mission_file: Path | None = None
-    bus_channel: Any = None  # swarmctl.world.channel.Channel of the ground mode's bus; None: ideal
+    bus_channel: Channel | None = None  # the channel model of the ground mode's bus; None: ideal
 
     @property
     def onboard(self) -> bool:
@@ -59,14 +64,23 @@ class MissionPlan:
     def fov(self) -> float:
         """The sensing radius in cells: the footprint at the mission's cell size."""
         m = self.spec.mission
+        assert m.footprint_m is not None and m.cell_size is not None, "make_plan resolves them"
         return float(m.footprint_m) / float(m.cell_size)
+
+    @property
+    def altitude(self) -> float:
+        """The mission altitude in metres above home (the spec's, resolved by make_plan: a mission file
+        may leave it out)."""
+        altitude = self.spec.mission.altitude
+        assert altitude is not None, "make_plan resolves the altitude"
+        return altitude
 
 
 def make_plan(
     spec: MissionSpec,
     *,
-    grid: Any = None,
-    policy: Any = None,
+    grid: GeoGrid | None = None,
+    policy: FieldPolicy | None = None,
     only: list[str] | None = None,
     detector: str | None = None,
     seed: int = 0,
@@ -104,7 +118,7 @@ def make_plan(
             "telemetry mesh that forwards TUNNEL messages to every vehicle's agent), or fly every vehicle "
             "from one computer with swarmctl fly"
         )
-    detectors = {i: spec.vehicles[i].detector for i in keep if spec.vehicles[i].detector is not None}
+    detectors = {i: d for i in keep if (d := spec.vehicles[i].detector) is not None}
     if socket is not None:
         detectors.update({i: socket for i in keep})
     key = None
@@ -120,7 +134,7 @@ def make_plan(
     )
 
 
-def _check_expected(m: MissionTable, grid: Any, where: str) -> None:
+def _check_expected(m: MissionTable, grid: GeoGrid, where: str) -> None:
     """expected_targets no more than the grid's free cells (a target a cell): else the finish line is
     never met."""
     free = int((~grid.blocked).sum())
@@ -131,7 +145,7 @@ def _check_expected(m: MissionTable, grid: Any, where: str) -> None:
         )
 
 
-def load_grid(spec: MissionSpec) -> Any:
+def load_grid(spec: MissionSpec) -> GeoGrid:
     """The spec's grid file, or a grid planned from its area at its altitude and cell size."""
     from swarmctl.geo.grid import GeoGrid, make_grid
 
@@ -153,7 +167,7 @@ def load_grid(spec: MissionSpec) -> Any:
     return grid
 
 
-def make_policy(text: str, seed: int, where: str) -> Any:
+def make_policy(text: str, seed: int, where: str) -> FieldPolicy:
     """The FieldPolicy for `text` (a checkpoint is loaded here); its InputError names the mission key."""
     from swarmctl.mission.decide import FieldPolicy
 
@@ -163,7 +177,7 @@ def make_policy(text: str, seed: int, where: str) -> Any:
         raise InputError(f"{where}: mission.policy: {exc}") from None
 
 
-def check_grid_size(grid: Any, where: str) -> None:
+def check_grid_size(grid: GeoGrid, where: str) -> None:
     """A grid a mission can fly: no larger than the knowledge messages carry (swarmctl.knowledge.codec)."""
     if not (grid.width <= MAX_SIDE and grid.height <= MAX_SIDE and grid.width * grid.height <= MAX_CELLS):
         raise InputError(
@@ -172,7 +186,7 @@ def check_grid_size(grid: Any, where: str) -> None:
         )
 
 
-def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
+def _check_grid(m: MissionTable, grid: GeoGrid, where: str) -> tuple[float, float]:
     """The altitude and cell size to fly: the mission's, checked against the grid's, or the grid's."""
     name = f"the grid {m.grid.name}" if m.grid is not None else "the grid"
     for key, what, value, option in (
@@ -201,7 +215,7 @@ def _check_grid(m: MissionTable, grid: Any, where: str) -> tuple[float, float]:
     return altitude, float(grid.cell)
 
 
-def _check_footprint(footprint: float | None, cell: float, policy: Any, where: str) -> float:
+def _check_footprint(footprint: float | None, cell: float, policy: FieldPolicy, where: str) -> float:
     """The footprint radius in metres: the policy's fov at this cell size, or the mission's when it
     is within FOOTPRINT_TOLERANCE cell of it."""
     fov = float(policy.fov)

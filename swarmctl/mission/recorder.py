@@ -23,22 +23,33 @@ and its knowledge lines, in one write each; a SIGKILL loses at most the write in
 already written), the tlog at least every TLOG_FLUSH_S, and summary.json is
 replaced whole (written beside, then renamed over), so it is always one complete summary. The files
 are flushed to the operating system, not synced to the disk: a crash of the machine itself may lose more.
+
+A write that fails (a full disk, a read-only mount, an I/O error, a removed folder) never reaches the
+flight: it is reported once (one line naming the file and the cause, per cause), the file is cut back
+to its last whole line or packet, and the recording degrades: the bulky files (mission.tlog,
+knowledge.jsonl, inputs.jsonl) stop at the first failure of any file, events.jsonl goes on while it
+can, and the mission's end (its end lines in events.jsonl, the final summary.json) is written into
+space reserved when the recording opened (`reserve` bytes, held by an unlinked file and released for
+the end). `lost` says what stopped and why; the summary carries it (`recording_lost`) and the commands
+exit with status 2.
 """
 
 from __future__ import annotations
 
 import base64
+import errno
 import functools
 import json
+import logging
 import os
 import shutil
 import struct
 import threading
 import time
 import zlib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -47,10 +58,22 @@ from swarmctl.knowledge.model import stacked_field
 from swarmctl.knowledge.stack import NEVER
 from swarmctl.mission.inputs import InputsEncoder
 
+log = logging.getLogger(__name__)
+
 _TS = struct.Struct(">Q")
 TLOG_FLUSH_S = 0.5  # the tlog is flushed this often (at least once a second, so a crash loses under a second)
+TLOG_BUFFER = 65536  # bytes of tlog packets kept before they are written (and at least every TLOG_FLUSH_S)
+# Space reserved when the recording opens, released for the mission's end: the end lines of events.jsonl
+# (about 300 bytes a vehicle), the final summary.json beside the one it replaces (about 1 KB a vehicle),
+# targets.geojson and targets.kml, each file rounded up to the disk's blocks.
+RESERVE_BYTES = 128 * 1024
+RESERVE_PER_VEHICLE = 4096
+BULKY = ("mission.tlog", "knowledge.jsonl", "inputs.jsonl")  # stopped first when a write fails
+_O_CLOEXEC = getattr(os, "O_CLOEXEC", 0)
 # Event kinds that change what summary.json says: a running summary is rewritten after each of them.
-CHANGE_KINDS = frozenset({"mission", "state", "link", "targets", "find", "end", "end_action", "end_action_failed"})
+CHANGE_KINDS = frozenset(
+    {"mission", "state", "link", "targets", "find", "end", "end_action", "end_action_failed", "recording_lost"}
+)
 
 
 _SEPARATORS = (",", ":")  # compact JSON lines
@@ -114,18 +137,102 @@ def _copy(source: Path, target: Path) -> None:
         shutil.copyfile(source, target)
 
 
-class Recorder:
-    """Writes the mission folder; every method is safe to call from the loop and from link threads."""
+def reserve_for(vehicles: int) -> int:
+    """The space a recording of `vehicles` vehicles reserves for its end (bytes)."""
+    return RESERVE_BYTES + RESERVE_PER_VEHICLE * max(int(vehicles), 0)
 
-    def __init__(self, folder: str | Path):
+
+def _write(fd: int, data: Any) -> int:
+    """os.write: every byte of the recording goes out through here (tests put a full disk in its place)."""
+    return os.write(fd, data)
+
+
+def cause(exc: BaseException) -> str:
+    """Why a write failed, in words: `No space left on device (ENOSPC)`."""
+    if isinstance(exc, OSError) and exc.errno is not None:
+        name = errno.errorcode.get(exc.errno)
+        text = exc.strerror or os.strerror(exc.errno)
+        return f"{text} ({name})" if name else text
+    return f"{type(exc).__name__}: {exc}"
+
+
+class _File:
+    """One file of the recording, written with whole writes or none: a write that fails part-way is cut
+    back to where the file ended before it, so every line and every packet in the file is whole."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND | _O_CLOEXEC, 0o666)
+        self.size = 0  # bytes written whole
+        self.torn = False  # a failed write could not be cut back: the file ends in part of a line
+
+    def write(self, data: bytes) -> None:
+        total, done = len(data), 0
+        with memoryview(data) as view:
+            try:
+                while done < total:
+                    n = _write(self.fd, view[done:])
+                    if n <= 0:
+                        raise OSError(errno.EIO, os.strerror(errno.EIO))
+                    done += n
+            except OSError:
+                if done:
+                    try:
+                        os.ftruncate(self.fd, self.size)
+                    except OSError:
+                        self.torn = True
+                raise
+        self.size += total
+
+    def close(self) -> None:
+        if self.fd >= 0:
+            fd, self.fd = self.fd, -1
+            os.close(fd)
+
+
+def _write_file(path: Path, data: bytes) -> None:
+    """`path` written whole with `data` (through _write), or removed."""
+    out = _File(path)
+    try:
+        out.write(data)
+    except OSError:
+        out.close()
+        try:
+            path.unlink()
+        except OSError:
+            pass
+        raise
+    out.close()
+
+
+class Recorder:
+    """Writes the mission folder; every method is safe to call from the loop and from link threads.
+
+    No write of the recording raises once it is open (the module's docstring: what degrades, the
+    reserve); opening it does (OSError: the folder cannot be written, or `reserve` bytes do not fit),
+    before anything flies."""
+
+    def __init__(self, folder: str | Path, reserve: int = RESERVE_BYTES):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self._lock = threading.Lock()
-        self._tlog = (self.folder / "mission.tlog").open("wb")
-        self._events = (self.folder / "events.jsonl").open("w", encoding="utf-8")
-        self._knowledge: IO[str] | None = None  # knowledge.jsonl, opened with the first snapshot
+        self.lost: dict[str, str] = {}  # file name -> why it stopped being written (empty: the recording is whole)
+        self._stopped: set[str] = set()  # files not written any more
+        self._reported: set[Any] = set()  # the causes reported (one line each)
+        self._unnoted: list[dict] = []  # recording_lost lines events.jsonl has not taken yet
+        self._ending = False  # the search is over: what comes now is the mission's end
+        self._resumed = False  # events.jsonl, stopped by a failure, took up again for the end
+        self._reserve: int | None = self._make_reserve(int(reserve))
+        try:
+            self._tlog = _File(self.folder / "mission.tlog")
+            self._events = _File(self.folder / "events.jsonl")
+        except OSError:
+            self._release()
+            raise
+        self._tlog_buffer = bytearray()
+        self._knowledge: _File | None = None  # knowledge.jsonl, opened with the first snapshot
         self._known: dict[str, tuple[int, int]] = {}  # vehicle -> (cells, targets) of its last snapshot
-        self._inputs: IO[str] | None = None  # inputs.jsonl, opened with the first decision round
+        self._inputs: _File | None = None  # inputs.jsonl, opened with the first decision round
         self._encoder = InputsEncoder()
         self._parser = mavlink2.MAVLink(None)
         self._parser.robust_parsing = True
@@ -141,17 +248,172 @@ class Recorder:
         while not self._closing.wait(TLOG_FLUSH_S):
             with self._lock:
                 if not self.closed:
-                    self._tlog.flush()
+                    self._tlog_out()
+
+    # --- space and failures (each with the lock held) ----------------------------------------------------
+    def _make_reserve(self, size: int) -> int | None:
+        """An unlinked file holding `size` bytes of the disk until _release (None: no reserve)."""
+        if size <= 0:
+            return None
+        path = self.folder / ".reserve"
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_TRUNC | _O_CLOEXEC, 0o600)
+        try:
+            os.unlink(path)  # nothing to see or leave behind: the space is held while the descriptor is open
+            try:
+                os.posix_fallocate(fd, 0, size)
+            except (AttributeError, OSError) as exc:  # no fallocate here: the bytes written instead
+                if isinstance(exc, OSError) and exc.errno not in (errno.EOPNOTSUPP, errno.EINVAL, errno.ENOSYS):
+                    raise
+                block, left = bytes(min(size, 65536)), size
+                while left > 0:
+                    left -= os.write(fd, block[: min(left, len(block))])
+        except OSError as exc:
+            os.close(fd)
+            raise OSError(
+                exc.errno,
+                f"{exc.strerror or exc}: the {size // 1024} KiB kept for the end of the recording do not fit",
+                str(self.folder),
+            ) from None
+        return fd
+
+    def _release(self) -> None:
+        """The reserved space, free for the mission's end."""
+        if self._reserve is not None:
+            fd, self._reserve = self._reserve, None
+            os.close(fd)
+
+    def _fail(self, name: str, exc: BaseException, keep: bool = False) -> None:
+        """Writing `name` failed: it stops (unless `keep`), and with it every bulky file; the cause is
+        reported once; at the mission's end the reserve is released."""
+        now = round(time.time(), 6)
+        why = cause(exc)
+        for n in ([] if keep else [name]) + [b for b in BULKY if b != name]:
+            if n in self._stopped:
+                continue
+            self._stopped.add(n)
+            self.lost[n] = why if n == name else f"stopped when {name} could not be written"
+            self._unnoted.append(dict(file=n, error=self.lost[n], since=now))
+        if name == "mission.tlog":
+            self._tlog_buffer.clear()
+        if self._ending:
+            self._release()
+        key = exc.errno if isinstance(exc, OSError) and exc.errno is not None else type(exc).__name__
+        if key in self._reported:
+            return
+        self._reported.add(key)
+        if "events.jsonl" in self._stopped:
+            what = "only the mission's end is written from here (its end lines and summary.json, into the space kept)"
+        else:
+            what = f"{', '.join(BULKY)} stop here; events.jsonl and summary.json go on"
+            if name == "summary.json" and keep:
+                what += " (summary.json at its next update)"
+        log.error(
+            "recording: cannot write %s: %s; %s; the flight goes on, exit status 2 at its end",
+            self.folder / name,
+            why,
+            what,
+        )
+
+    def _events_write(self, data: bytes) -> bool:
+        """`data` (whole lines, or b"") to events.jsonl after the recording_lost lines it has not taken
+        yet; False when events.jsonl is stopped or this write failed. At the mission's end a failure
+        releases the reserve and the write is made again (once)."""
+        while "events.jsonl" not in self._stopped:
+            out = self._events
+            head = b"\n" if out.torn else b""  # a line cut short that could not be cut back: ended here
+            if self._unnoted:
+                head += "".join(
+                    json.dumps({"t": time.time(), "event": "recording_lost", **d}, separators=_SEPARATORS) + "\n"
+                    for d in self._unnoted
+                ).encode()
+            if not head and not data:
+                return True
+            try:
+                out.write(head + data if head else data)
+            except OSError as exc:
+                if self._ending and self._reserve is not None:  # the end: into the space kept for it
+                    self._fail("events.jsonl", exc, keep=True)
+                    continue
+                self._fail("events.jsonl", exc)
+                return False
+            out.torn = False
+            if self._unnoted:
+                self.events += len(self._unnoted)
+                self.changes += len(self._unnoted)
+                self._unnoted.clear()
+            return True
+        return False
+
+    def _bulky(self, name: str, out: _File | None, data: bytes) -> bool:
+        """`data` to a bulky file (mission.tlog, knowledge.jsonl, inputs.jsonl); False when it failed."""
+        if out is None or name in self._stopped:
+            return False
+        try:
+            out.write(data)
+            return True
+        except OSError as exc:
+            self._fail(name, exc)
+            self._events_write(b"")  # say so in events.jsonl while it can
+            return False
+
+    def _open_bulky(self, name: str) -> _File | None:
+        if name in self._stopped:
+            return None
+        try:
+            return _File(self.folder / name)
+        except OSError as exc:
+            self._fail(name, exc)
+            self._events_write(b"")
+            return None
+
+    def _tlog_out(self) -> None:
+        if self._tlog_buffer:
+            data = bytes(self._tlog_buffer)  # a copy: nothing a failed write keeps holds the buffer
+            self._tlog_buffer.clear()
+            self._bulky("mission.tlog", self._tlog, data)
+
+    def ending(self) -> None:
+        """The search is over: from now on the mission's end is written (the end and end-action lines,
+        the final summary). If part of the recording was lost by now, the reserve is released and
+        events.jsonl (if it stopped) takes up again, for the end; if not, the reserve is kept until a
+        write fails or the final summary."""
+        with self._lock:
+            self._ending = True
+            if self.lost:
+                self._release()
+                if "events.jsonl" in self._stopped and not self._resumed and not self.closed:
+                    self._resumed = True
+                    self._stopped.discard("events.jsonl")
+                    self._events_write(b"")
+
+    def write_extra(self, name: str, make: Callable[..., object]) -> bool:
+        """A file beside the recording made by make() (after the mission: the targets, the picture); a
+        failure to write it is reported as the recording's are (its cause once) and counted in `lost`."""
+        try:
+            make()
+            return True
+        except OSError as exc:
+            try:
+                (self.folder / name).unlink(missing_ok=True)  # what it had written of it is no use
+            except OSError:
+                pass
+            with self._lock:
+                self._fail(name, exc)
+            return False
 
     # --- MAVLink ---------------------------------------------------------------------------------------
     def packet(self, data: bytes, when: float | None = None) -> None:
         """One raw MAVLink packet (a single frame)."""
         stamp = int((time.time() if when is None else when) * 1e6)
         with self._lock:
-            if self.closed:
+            if self.closed or "mission.tlog" in self._stopped:
                 return
-            self._tlog.write(_TS.pack(stamp) + data)  # bytes + any bytes-like: one new bytes
+            buffer = self._tlog_buffer
+            buffer += _TS.pack(stamp)
+            buffer += data
             self.packets += 1
+            if len(buffer) >= TLOG_BUFFER:
+                self._tlog_out()
 
     def frames(self, msgs: list) -> None:
         """Parsed MAVLink messages, each logged as its own packet (its frame as received), all with one
@@ -161,10 +423,13 @@ class Recorder:
         stamp = _TS.pack(int(time.time() * 1e6))
         data = stamp + stamp.join([m.get_msgbuf() for m in msgs])  # stamp, frame, stamp, frame, ...
         with self._lock:
-            if self.closed:
+            if self.closed or "mission.tlog" in self._stopped:
                 return
-            self._tlog.write(data)
+            buffer = self._tlog_buffer
+            buffer += data
             self.packets += len(msgs)
+            if len(buffer) >= TLOG_BUFFER:
+                self._tlog_out()
 
     def datagram(self, data: bytes) -> None:
         """A datagram that may hold several frames: each frame is logged as its own packet."""
@@ -190,7 +455,11 @@ class Recorder:
         class _Tee:
             def write(self, data: bytes) -> None:
                 inner.write(data)
-                recorder.packet(data)
+                try:  # what is sent goes out whatever becomes of its record
+                    recorder.packet(data)
+                except Exception as exc:
+                    with recorder._lock:
+                        recorder._fail("mission.tlog", exc)
 
         mav.file = _Tee()
 
@@ -220,13 +489,13 @@ class Recorder:
         self._write_events(lines, sum(kind in CHANGE_KINDS for kind, _ in events))
 
     def _write_events(self, lines: list[str], changes: int) -> None:
+        data = (lines[0] if len(lines) == 1 else "".join(lines)).encode()
         with self._lock:
             if self.closed:
                 return
-            self._events.write(lines[0] if len(lines) == 1 else "".join(lines))
-            self._events.flush()
-            self.events += len(lines)
-            self.changes += changes
+            self.changes += changes  # the running summary follows the mission even when the lines are lost
+            if self._events_write(data):
+                self.events += len(lines)
 
     def knowledge(self, step: int, views: Iterable[tuple[str, Any]]) -> int:
         """One "knowledge" line per (vehicle name, Knowledge) whose explored cells or known targets changed
@@ -236,7 +505,7 @@ class Recorder:
         same cells and targets (with ideal sharing, nearly all) share one compressed map and one encoded
         tail of the line."""
         views = list(views)
-        if not views:
+        if not views or "knowledge.jsonl" in self._stopped:
             return 0
         knowledges = [kn for _, kn in views]
         explored = stacked_field(knowledges, "explored").reshape(len(views), -1)
@@ -280,33 +549,31 @@ class Recorder:
             if self.closed:
                 return 0
             if self._knowledge is None:
-                self._knowledge = (self.folder / "knowledge.jsonl").open("w", encoding="utf-8")
-            self._knowledge.write("".join(lines))
-            self._knowledge.flush()
+                self._knowledge = self._open_bulky("knowledge.jsonl")
+            if not self._bulky("knowledge.jsonl", self._knowledge, "".join(lines).encode()):
+                return 0
         return len(lines)
 
     def inputs(self, step: int, names: list[str], beliefs: Any, held: list[tuple[int, tuple[int, int]]]) -> None:
         """Round `step`'s "inputs" line: the Beliefs the policy decided on for the vehicles `names` (in
         the batch's order) and the guard's other vehicles `held` as (mission index, or -1 for another
         process's vehicle, cell), in the guard's order."""
+        if "inputs.jsonl" in self._stopped:
+            return
         fields = self._encoder.line(step, names, beliefs, held)
         line = json.dumps({"t": time.time(), "event": "inputs", **fields}, separators=(",", ":")) + "\n"
         with self._lock:
             if self.closed:
                 return
             if self._inputs is None:
-                self._inputs = (self.folder / "inputs.jsonl").open("w", encoding="utf-8")
-            self._inputs.write(line)
-            self._inputs.flush()
+                self._inputs = self._open_bulky("inputs.jsonl")
+            self._bulky("inputs.jsonl", self._inputs, line.encode())
 
     def flush(self) -> None:
+        """The tlog's packets out to the operating system (every other line is handed over as it is written)."""
         with self._lock:
             if not self.closed:
-                self._tlog.flush()
-                self._events.flush()
-                for f in (self._knowledge, self._inputs):
-                    if f is not None:
-                        f.flush()
+                self._tlog_out()
 
     # --- files -----------------------------------------------------------------------------------------
     def copy_inputs(self, mission_file: Path | None, grid_file: Path | None, grid: Any = None) -> None:
@@ -319,15 +586,24 @@ class Recorder:
         elif grid is not None:
             grid.save(self.folder / "grid.npz")
 
-    def write_summary(self, summary: dict, running: bool = False) -> Path:
+    def write_summary(self, summary: dict, running: bool = False) -> Path | None:
         """Replace summary.json whole (written beside it, then renamed over it), with `running`: true while
-        the mission goes on, false for the final one."""
+        the mission goes on, false for the final one (written into the reserved space). None when it
+        could not be written (reported; a running one is tried again at the next call, and the one on
+        disk stays the last whole one)."""
         path = self.folder / "summary.json"
         text = summary_text(_jsonable({**summary, "running": running})) + "\n"
         with self._lock:  # one writer at a time: the running summary and the final one share the name
+            if not running:
+                self._release()
             partial = path.with_name(f".{path.name}.partial")
-            partial.write_text(text, encoding="utf-8")
-            os.replace(partial, path)
+            try:
+                _write_file(partial, text.encode())
+                os.replace(partial, path)
+            except OSError as exc:
+                self._fail("summary.json", exc, keep=running)
+                self._events_write(b"")
+                return None
         return path
 
     def close(self) -> None:
@@ -337,9 +613,13 @@ class Recorder:
         with self._lock:
             if self.closed:
                 return
+            self._tlog_out()
+            self._release()
+            self._events_write(b"")  # the losses events.jsonl has not told yet
             self.closed = True
-            self._tlog.close()
-            self._events.close()
-            for f in (self._knowledge, self._inputs):
+            for f in (self._tlog, self._events, self._knowledge, self._inputs):
                 if f is not None:
-                    f.close()
+                    try:
+                        f.close()
+                    except OSError as exc:  # the last of an NFS file's writes may come back only here
+                        self._fail(f.path.name, exc)

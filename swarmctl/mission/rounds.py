@@ -87,6 +87,7 @@ def ended(c: Controller) -> str | None:
         if len(set(cells)) == len(cells):
             # complete when every vehicle is hovering on a target; partial when some dropped out
             return "complete" if len(live) == len(c.agents) else "partial"
+    assert c.search_started is not None  # the rounds run once the search has started
     if time.monotonic() - c.search_started > c.plan.spec.timing.time_limit:
         return "time limit"
     return None
@@ -154,7 +155,7 @@ async def decision_round(c: Controller) -> bool:
     choices = c.policy.decide(beliefs) if beliefs is not None else []
     c.decide_times.append(time.monotonic() - t)
     proposed = {
-        a.index: (a.cell[0] + int(MOVES[ch.move][0]), a.cell[1] + int(MOVES[ch.move][1]))
+        a.index: (a.here[0] + int(MOVES[ch.move][0]), a.here[1] + int(MOVES[ch.move][1]))
         for a, ch in zip(searching, choices)
     }
     # guard every vehicle this process knows of, in mission order; vehicles not searching stay
@@ -169,7 +170,7 @@ async def decision_round(c: Controller) -> bool:
     guarded = {a.index: d for a, d in zip(order, decisions)}
     c.step += 1
     if beliefs is not None:  # what --verify decides again: the beliefs, and the guard's other vehicles
-        held_cells = [(a.index, a.cell) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
+        held_cells = [(a.index, a.here) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
         c.rec.inputs(c.step, [a.name for a in searching], beliefs, held_cells)
     moves: list[tuple[Agent, tuple[int, int]]] = []
     records, refusals = [], []
@@ -189,7 +190,7 @@ async def decision_round(c: Controller) -> bool:
             obs=ch.obs_digest,
             q=ch.q,
             move=MOVE_NAMES[ch.move],
-            guarded=MOVE_NAMES[move_index(a.cell, d.cell)],
+            guarded=MOVE_NAMES[move_index(a.here, d.cell)],
             refused=d.refused,
             received=a.received_since(),
         )

@@ -23,12 +23,15 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from swarmctl.knowledge.model import disc_cells
 from swarmctl.world.scenario import fov_offsets
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.geo.grid import GeoGrid
 
 
 def _none() -> np.ndarray:
@@ -49,12 +52,12 @@ class Sensed:
     seen_from: np.ndarray = field(default_factory=_none)  # (K, 2): the cell each target was seen from
 
 
-def footprint(cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
+def footprint(cell: tuple[int, int], grid: GeoGrid, fov: float) -> np.ndarray:
     """(N, 2) cells of the footprint round `cell` that lie on the grid."""
     return disc_cells(cell, grid.width, grid.height, fov)
 
 
-def footprints(grid: Any, fov: float, cells: list[tuple[int, int]]) -> list[Sensed]:
+def footprints(grid: GeoGrid, fov: float, cells: list[tuple[int, int]]) -> list[Sensed]:
     """What `sense(grid, fov, cell, [], visited)` gives for each of `cells` (the footprint alone, with
     the grid's obstacles and phi 0), the footprints of all of them computed in one array operation."""
     if not cells:
@@ -74,7 +77,7 @@ def footprints(grid: Any, fov: float, cells: list[tuple[int, int]]) -> list[Sens
     return out
 
 
-def in_footprint(cells: np.ndarray, cell: tuple[int, int], grid: Any, fov: float) -> np.ndarray:
+def in_footprint(cells: np.ndarray, cell: tuple[int, int], grid: GeoGrid, fov: float) -> np.ndarray:
     """(N,) bool: which of `cells` (N, 2) lie in the footprint round `cell` (the grid's cells whose
     offset from `cell` is in the sensing disc, swarmctl.world.scenario.fov_offsets)."""
     d = cells - np.asarray(cell, dtype=np.int64)
@@ -83,7 +86,11 @@ def in_footprint(cells: np.ndarray, cell: tuple[int, int], grid: Any, fov: float
 
 
 def sense(
-    grid: Any, fov: float, reached: tuple[int, int] | None, reports: Iterable[Any], visited: Collection[tuple[int, int]]
+    grid: GeoGrid,
+    fov: float,
+    reached: tuple[int, int] | None,
+    reports: Iterable[Any],
+    visited: Collection[tuple[int, int]],
 ) -> Sensed:
     """The footprint round `reached` (None: the vehicle did not arrive anywhere new this round) with the
     grid's obstacles and phi 0, plus what `reports` (SensorReports) say within the footprints of cells

@@ -9,16 +9,19 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from swarmctl.errors import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, printable
+from swarmctl.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, printable
 from swarmctl.mission import finish, sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
 from swarmctl.mission.plan import MissionPlan
-from swarmctl.mission.recorder import Recorder
+from swarmctl.mission.recorder import Recorder, reserve_for
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.geo.grid import GeoGrid
 
 log = logging.getLogger(__name__)
 
@@ -30,6 +33,7 @@ OUTCOME_EXIT = {
     "failed": EXIT_FAILED,
     "interrupted": EXIT_INTERRUPTED,
 }
+EXIT_RECORDING_LOST = EXIT_BAD_INPUT  # 2: part of the recording could not be written, whatever the outcome
 
 
 def describe(plan: MissionPlan) -> list[str]:
@@ -39,7 +43,7 @@ def describe(plan: MissionPlan) -> list[str]:
     above = (
         f" (above the {g.altitude:g} m the grid was planned for: it blocks every building of {g.altitude:g} m "
         "or more, though the vehicles clear the lower of them)"
-        if m.altitude > g.altitude
+        if plan.altitude > g.altitude
         else ""
     )
     lines = [
@@ -146,12 +150,22 @@ async def keep_summary(controller: Controller, rec: Recorder, extra_summary: Any
 
 
 def run_controller(
-    plan: MissionPlan, folder: Path, view: LiveView | None, extra_summary: Any = None
+    plan: MissionPlan,
+    folder: Path,
+    view: LiveView | None,
+    extra_summary: Any = None,
+    extra_files: dict[str, Any] | None = None,
 ) -> tuple[int, dict]:
     """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording (summary.json kept up
-    to date while it flies); exit status."""
-    rec = Recorder(folder)
-    rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
+    to date while it flies; `extra_files`: name -> a function of the folder writing that file after the
+    summary, as the picture); exit status: the outcome's, or EXIT_RECORDING_LOST when part of the
+    recording could not be written (the summary's `recording_lost` says what)."""
+    rec = Recorder(folder, reserve=reserve_for(len(plan.spec.vehicles)))  # no room for the end: refused here
+    try:
+        rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
+    except BaseException:
+        rec.close()
+        raise
     controller = Controller(plan, rec, view=view)
 
     async def main() -> str:
@@ -176,10 +190,15 @@ def run_controller(
         outcome = asyncio.run(main())
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
         rec.write_summary(summary, running=False)
-        write_targets_geojson(folder / "targets.geojson", summary)
-        write_targets_kml(folder / "targets.kml", summary)
+        rec.write_extra("targets.geojson", lambda: write_targets_geojson(folder / "targets.geojson", summary))
+        rec.write_extra("targets.kml", lambda: write_targets_kml(folder / "targets.kml", summary))
+        for name, make in (extra_files or {}).items():
+            rec.write_extra(name, lambda make=make: make(folder))
     finally:
         rec.close()
+    summary["recording_lost"] = dict(rec.lost)  # and what was lost after the summary was written
+    if rec.lost:
+        return EXIT_RECORDING_LOST, summary
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
 
 
@@ -239,14 +258,19 @@ def write_targets_kml(path: Path, summary: dict) -> Path:
     return path
 
 
-def draw_mission(folder: Path, grid: Any, hidden: np.ndarray | None = None, out: Path | None = None) -> Path:
+def draw_mission(folder: Path, grid: GeoGrid, hidden: np.ndarray | None = None, out: Path | None = None) -> Path:
     """mission.png: the grid, blocked cells, each vehicle's path, the targets found (and hidden)."""
     import json
 
     from swarmctl.figures import pyplot
 
     plt = pyplot()
-    events = [json.loads(line) for line in (folder / "events.jsonl").read_text().splitlines() if line]
+    events = []
+    for line in (folder / "events.jsonl").read_text(errors="replace").splitlines():
+        try:
+            events.append(json.loads(line))
+        except ValueError:  # a line cut short (the replay lists it as damage): not drawn
+            continue
     paths: dict[str, list] = {}
     for e in events:
         if e["event"] == "state" and e.get("cell") is not None:

@@ -21,7 +21,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 from swarmctl.knowledge.bus import KnowledgeBus
-from swarmctl.knowledge.exchange import KnowledgeExchange
+from swarmctl.knowledge.exchange import DatagramSocket, KnowledgeExchange
 from swarmctl.knowledge.model import Knowledge
 from swarmctl.knowledge.stack import KnowledgeStack
 
@@ -35,7 +35,7 @@ if TYPE_CHECKING:
 class TapSocket:
     """Wraps a KnowledgeExchange's socket so the recorder sees every datagram in and out."""
 
-    def __init__(self, sock: Any, recorder: Recorder):
+    def __init__(self, sock: DatagramSocket, recorder: Recorder):
         self._sock, self._rec = sock, recorder
 
     def sendto(self, data: bytes, addr: Any) -> int:
@@ -69,7 +69,7 @@ def open_exchange(
         kn = bus.stack.knowledge(index)
     else:
         kn = Knowledge(plan.grid.width, plan.grid.height, vehicle_id=index)
-    common = dict(
+    common: dict[str, Any] = dict(
         system_id=spec.sysid,
         digest_every=plan.spec.knowledge.digest_every,
         push=plan.spec.knowledge.push,
@@ -83,6 +83,7 @@ def open_exchange(
     if channel is None:  # make_plan refuses such a plan; a plan changed by hand must not fly mute
         raise ValueError("an onboard plan needs a [knowledge] channel")
     exchange = KnowledgeExchange(kn, plan.spec.mission.id, (channel.host, channel.port), **common)
+    assert exchange.sock is not None  # a UDP exchange
     exchange.sock = TapSocket(exchange.sock, recorder)
     return exchange
 

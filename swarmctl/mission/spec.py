@@ -36,7 +36,7 @@ import re
 import sys
 import tomllib
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -53,14 +53,16 @@ from pydantic import (
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
-from swarmctl.mavlink.autopilots import AUTOPILOT_NAMES
+from swarmctl.mavlink.autopilots import AutopilotName
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_table, replace_between, table_of_key
-from swarmctl.world.config import FINISHES  # when the search is complete (swarmctl.mission.finish)
+from swarmctl.world.config import Finish  # when the search is complete (swarmctl.mission.finish)
 
 MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
-END_ACTIONS = ("land", "rtl", "hover")
-ON_FIND = ("hold", "mark")  # what a vehicle does at a target it finds
+EndAction = Literal["land", "rtl", "hover"]
+END_ACTIONS: tuple[str, ...] = get_args(EndAction)
+OnFind = Literal["hold", "mark"]  # what a vehicle does at a target it finds
+ON_FIND: tuple[str, ...] = get_args(OnFind)
 MAX_EXPECTED_TARGETS = 1 << 15  # a target a cell at most, and no grid a mission flies has more cells
 PUSH_UP_TO = 12  # knowledge push is on for swarms of up to this many vehicles (see [knowledge] push)
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"  # names become parts of recording folder names
@@ -118,21 +120,36 @@ def _connection(
     return Annotated[Endpoint, PlainValidator(parse), PlainSerializer(str, when_used="json")]
 
 
-VehicleLink = _connection(
-    ("udpin", "udpout", "tcp", "serial"),
-    "is not a MAVLink connection",
-    "connection",
-    "udpin:0.0.0.0:14551",
-    " (udpin, udpout, tcp HOST:PORT or a serial DEVICE:BAUD)",
-    port_zero=True,  # udpin port 0: any free port (tests)
-)
-SendTo = _connection(
-    ("udpout",), "is not a UDP address to send to", "channel", "udpout:127.0.0.1:14600", " (a MAVLink router or radio)"
-)
-GroundStation = _connection(
-    ("udpout",), "is not a UDP address to send to", "gcs", "udpout:127.0.0.1:14550", " (QGroundControl listens there)"
-)
-DetectorSocket = _connection(("udpin",), "is not a local UDP socket", "detector", "udp:127.0.0.1:14650")
+if TYPE_CHECKING:  # what the validators below give: an Endpoint
+    VehicleLink = Endpoint
+    SendTo = Endpoint
+    GroundStation = Endpoint
+    DetectorSocket = Endpoint
+else:
+    VehicleLink = _connection(
+        ("udpin", "udpout", "tcp", "serial"),
+        "is not a MAVLink connection",
+        "connection",
+        "udpin:0.0.0.0:14551",
+        " (udpin, udpout, tcp HOST:PORT or a serial DEVICE:BAUD)",
+        port_zero=True,  # udpin port 0: any free port (tests)
+    )
+    SendTo = _connection(
+        ("udpout",),
+        "is not a UDP address to send to",
+        "channel",
+        "udpout:127.0.0.1:14600",
+        " (a MAVLink router or radio)",
+    )
+    GroundStation = _connection(
+        ("udpout",),
+        "is not a UDP address to send to",
+        "gcs",
+        "udpout:127.0.0.1:14550",
+        " (QGroundControl listens there)",
+    )
+    DetectorSocket = _connection(("udpin",), "is not a local UDP socket", "detector", "udp:127.0.0.1:14650")
+
 ON_LINK = "mavlink"  # a detector whose reports come on the vehicle's own MAVLink link
 _SOCKET = TypeAdapter(DetectorSocket)
 
@@ -268,7 +285,7 @@ class MissionTable(Table):
         min_length=1,
         example="frontier",
     )
-    end_action: Literal[END_ACTIONS] = setting(
+    end_action: EndAction = setting(
         "rtl", "at the end: land, rtl, or hover (vehicles on a target hold, the others come home)"
     )
     signing_key: FilePath | None = setting(
@@ -285,7 +302,13 @@ class MissionTable(Table):
         default_text="none",
     )
     fence: bool = setting(False, "upload the area's boundary (plus one cell) to every vehicle as its geofence")
-    finish: Literal[FINISHES] = setting(
+    allow_no_failsafe: bool = setting(
+        False,
+        "fly a vehicle whose GCS failsafe is off (ArduPilot FS_GCS_ENABLE 0, PX4 NAV_DLL_ACT 0: both their "
+        "defaults), with a warning; false: preflight reads it and refuses such a vehicle before anything takes "
+        "off, as then nothing brings it home if swarmctl stops",
+    )
+    finish: Finish = setting(
         "held",
         "when the search is complete: held (expected_targets distinct targets hovered on by live vehicles), "
         "found (expected_targets targets known to the swarm; unknown: the area covered) or covered (every "
@@ -300,7 +323,7 @@ class MissionTable(Table):
         example=3,
         default_text="held: the vehicle count; found: unknown, so the area covered",
     )
-    on_find: Literal[ON_FIND] = setting(
+    on_find: OnFind = setting(
         "hold",
         "what a vehicle does at a target it finds: hold (hover on it to the end) or mark (report it: a find "
         "event, a STATUSTEXT, the summary; and search on); mark needs finish found or covered",
@@ -486,7 +509,7 @@ class VehicleSpec(Table):
         le=250,
         example=1,
     )
-    autopilot: Literal[AUTOPILOT_NAMES] | None = setting(
+    autopilot: AutopilotName | None = setting(
         None,
         "the firmware it must run; a vehicle whose heartbeat says otherwise is refused",
         example="ardupilot",

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel
+from pydantic.fields import FieldInfo
 
 from swarmctl.mavlink.codec import Endpoint
 
@@ -102,7 +103,7 @@ def _walk(root: type[BaseModel], loc: tuple) -> tuple[list, Any, type[BaseModel]
     return parts, info, owner
 
 
-def _table_of(info: Any) -> type[BaseModel] | None:
+def _table_of(info: FieldInfo) -> type[BaseModel] | None:
     for t in (info.annotation, *typing.get_args(info.annotation)):
         if isinstance(t, type) and issubclass(t, BaseModel):
             return t
@@ -129,14 +130,14 @@ def _unknown(root: type[BaseModel], parts: list, owner: type[BaseModel]) -> str:
     return f"{key} is not a key of {table}; use one of {', '.join(sorted(owner.model_fields))}"
 
 
-def bounds(info: Any) -> tuple[float | None, float | None]:
+def bounds(info: FieldInfo) -> tuple[float | None, float | None]:
     """A number field's range (ge, le); (None, None) for other fields."""
     lo = next((m.ge for m in info.metadata if hasattr(m, "ge")), None)
     hi = next((m.le for m in info.metadata if hasattr(m, "le")), None)
     return lo, hi
 
 
-def _base_type(info: Any) -> Any:
+def _base_type(info: FieldInfo) -> Any:
     """The field's type without None and without Annotated metadata (Literal kept whole)."""
     t = info.annotation
     args = [a for a in typing.get_args(t) if a is not type(None)]
@@ -147,12 +148,18 @@ def _base_type(info: Any) -> Any:
     return t
 
 
-def _choices(info: Any) -> tuple | None:
+def _choices(info: FieldInfo) -> tuple[str, ...] | None:
     t = _base_type(info)
     return typing.get_args(t) if typing.get_origin(t) is Literal else None
 
 
-def _kind(info: Any) -> str:
+def _extra(info: FieldInfo) -> dict[str, Any]:
+    """A field's json_schema_extra: the dict setting() gives it (none: empty)."""
+    extra = info.json_schema_extra
+    return extra if isinstance(extra, dict) else {}
+
+
+def _kind(info: FieldInfo) -> str:
     t = _base_type(info)
     if _choices(info):
         return "choice"
@@ -160,12 +167,12 @@ def _kind(info: Any) -> str:
     return names.get(t, "connection" if t is Endpoint or Endpoint in typing.get_args(t) else "table")
 
 
-def _unit(info: Any) -> str:
-    unit = (info.json_schema_extra or {}).get("unit", "")
+def _unit(info: FieldInfo) -> str:
+    unit = _extra(info).get("unit", "")
     return f" ({unit})" if unit and unit != "%" else (" %" if unit else "")
 
 
-def _rule(info: Any) -> str:
+def _rule(info: FieldInfo) -> str:
     if info is None:
         return "is not valid"
     kind, (lo, hi) = _kind(info), bounds(info)
@@ -176,22 +183,23 @@ def _rule(info: Any) -> str:
     if kind == "true/false":
         return "must be true or false"
     if kind == "choice":
-        return f"must be one of {', '.join(_choices(info))}"
+        return f"must be one of {', '.join(_choices(info) or ())}"
     if info.metadata and any(hasattr(m, "pattern") for m in info.metadata):
         return "must be a name of letters, digits, '.', '_' or '-' (at most 64, starting with a letter or digit)"
     return "must be a non-empty string"
 
 
-def _example(info: Any) -> Any:
-    extra = info.json_schema_extra or {}
+def _example(info: FieldInfo) -> Any:
+    extra = _extra(info)
     if "example" in extra:
         return extra["example"]
-    if _choices(info):
-        return info.default if info.default is not None else _choices(info)[0]
+    choices = _choices(info)
+    if choices:
+        return info.default if info.default is not None else choices[0]
     return info.default
 
 
-def _fix(parts: list, info: Any) -> str:
+def _fix(parts: list, info: FieldInfo | None) -> str:
     if info is None:
         return "see docs/mission.md"
     return f"write for example {parts[-1]} = {_value(_example(info))}"
@@ -226,7 +234,7 @@ def markdown_table(root: type[BaseModel]) -> str:
     for table, model in tables(root).items():
         name = heading(root, table)
         for key, info in model.model_fields.items():
-            extra = info.json_schema_extra or {}
+            extra = _extra(info)
             if "default_text" in extra:
                 default = extra["default_text"]
             elif info.is_required():
@@ -239,8 +247,8 @@ def markdown_table(root: type[BaseModel]) -> str:
             unit = extra.get("unit", "")
             if lo is not None:
                 span = f"{lo:g} to {hi:g} {unit}".strip()
-            elif _choices(info):
-                span = ", ".join(_choices(info))
+            elif choices := _choices(info):
+                span = ", ".join(choices)
             else:
                 span = extra.get("span", "")
             meaning = (info.description or "").replace("|", "\\|")

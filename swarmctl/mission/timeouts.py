@@ -5,17 +5,20 @@ and the distance it flies, with the margin of swarmctl.mavlink.limits (2 x the p
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from swarmctl.mavlink.codec import distance_m
 
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.mavlink.vehicle import Vehicle
 
-def takeoff(given: float | None, vehicle: Any, altitude: float) -> float:
+
+def takeoff(given: float | None, vehicle: Vehicle, altitude: float) -> float:
     """Arming and climbing to `altitude` metres above home."""
     return given if given is not None else vehicle.limits.takeoff_timeout(altitude)
 
 
-def move(given: float | None, vehicle: Any, lat: float, lon: float, rel_alt: float) -> float:
+def move(given: float | None, vehicle: Vehicle, lat: float, lon: float, rel_alt: float) -> float:
     """Flying from where the vehicle is to (lat, lon, rel_alt); from the ground when its position is
     not known."""
     if given is not None:
@@ -26,7 +29,7 @@ def move(given: float | None, vehicle: Any, lat: float, lon: float, rel_alt: flo
     return vehicle.limits.move_timeout(distance_m(pos.lat, pos.lon, lat, lon), rel_alt - pos.rel_alt)
 
 
-def end(given: float | None, vehicle: Any, action: str, altitude: float) -> float:
+def end(given: float | None, vehicle: Vehicle, action: str, altitude: float) -> float:
     """Landing after the end action ("land": where it is; "rtl": home first), until disarmed; from
     `altitude` when the vehicle's position is not known."""
     if given is not None:

@@ -14,13 +14,14 @@ swarmctl.policy.draws, keyed by (seed, episode, step, vehicle), so a batch's siz
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 from typing import Protocol
 
 import numpy as np
 
 from swarmctl.policy.hover import FIRST, NO, parks
-from swarmctl.world.beliefs import Beliefs
+from swarmctl.world.beliefs import Beliefs, Crew
 from swarmctl.world.moves import MOVES, N_ACTIONS, STAY, block_starts, move_table
 
 
@@ -64,7 +65,7 @@ def _allowed_batched(beliefs: Beliefs, parked: np.ndarray | None, mask: bool) ->
         w, h = beliefs.width, beliefs.height
         pos = beliefs.pos
         dest = move_table(w, h).reshape(w, h, -1)[pos[..., 0], pos[..., 1]]  # (B, U, 5) flat cells, -1 off the map
-        allowed = dest >= 0
+        allowed: np.ndarray = dest >= 0
         if beliefs.any_obstacle:  # a move off the map reads some other cell here: it is refused already
             rows = block_starts(b * u, w * h).reshape(b, u, 1)
             allowed &= ~beliefs.obstacles.reshape(-1)[rows + dest]
@@ -88,10 +89,11 @@ def _allowed_batched(beliefs: Beliefs, parked: np.ndarray | None, mask: bool) ->
 @lru_cache(maxsize=16)
 def _destinations(width: int, height: int) -> list[list[int]]:
     """move_table as Python lists: per flat cell, the flat cell of each move, -1 off the map."""
-    return move_table(width, height).tolist()
+    result: list[list[int]] = move_table(width, height).tolist()
+    return result
 
 
-def _allowed_few(beliefs: Beliefs, crews: list, parked: np.ndarray | None, mask: bool) -> np.ndarray:
+def _allowed_few(beliefs: Beliefs, crews: Sequence[Crew], parked: np.ndarray | None, mask: bool) -> np.ndarray:
     """allowed_moves for a few deciders, from Beliefs.crews (Python ints): the same rules."""
     hover = parked is not None
     parks_here = parked.reshape(-1).tolist() if parked is not None else None
@@ -130,7 +132,8 @@ def softmax_sample(q: np.ndarray, tau: float, u: np.ndarray) -> np.ndarray:
     p = np.exp(z, out=z)
     p /= np.add.reduce(p, axis=1, keepdims=True)
     below = np.add.accumulate(p, axis=1) < np.asarray(u).reshape(-1, 1)
-    return np.minimum(np.add.reduce(below, axis=1), q.shape[1] - 1)
+    result: np.ndarray = np.minimum(np.add.reduce(below, axis=1), q.shape[1] - 1)
+    return result
 
 
 def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, u: np.ndarray) -> np.ndarray:
@@ -139,5 +142,6 @@ def choose(q: np.ndarray, allowed: np.ndarray, tau: float | None, u: np.ndarray)
     b, n, a = q.shape
     q = np.where(allowed, q, -np.inf)
     if tau is None:
-        return q.argmax(axis=-1)
+        result: np.ndarray = q.argmax(axis=-1)
+        return result
     return softmax_sample(q.reshape(b * n, a), tau, np.asarray(u).reshape(-1)).reshape(b, n)

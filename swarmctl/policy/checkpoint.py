@@ -27,7 +27,7 @@ import torch
 
 from swarmctl.bounds import CHECKPOINT_MAX_BYTES, size_text
 from swarmctl.errors import InputError, ScenarioError
-from swarmctl.policy.qnet import NETWORKS
+from swarmctl.policy.qnet import NETWORKS, QNet
 from swarmctl.world.beliefs import PAPER_VARIANT
 from swarmctl.world.config import WorldConfig
 
@@ -47,7 +47,12 @@ def weights_sha256(state_dict: dict[str, torch.Tensor]) -> str:
 
 
 def save_checkpoint(
-    path: str | Path, net: torch.nn.Module, world: dict, train: dict, metadata: dict, resume: dict | None = None
+    path: str | Path,
+    net: QNet,
+    world: dict[str, Any],
+    train: dict[str, Any],
+    metadata: dict[str, Any],
+    resume: dict[str, Any] | None = None,
 ) -> str:
     """Write the network and everything needed to reproduce and judge it; returns its weights hash."""
     path = Path(path)
@@ -79,7 +84,7 @@ def model_reference(path: str | Path, info: dict[str, Any]) -> dict[str, str]:
     return {"file": Path(path).name, "weights_sha256": info["weights_sha256"]}
 
 
-def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.nn.Module, dict]:
+def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[QNet, dict[str, Any]]:
     """Load and validate a checkpoint; returns (network in eval mode, payload without weights).
 
     Raises InputError naming the file when it is missing, over CHECKPOINT_MAX_BYTES, not a checkpoint,
@@ -119,7 +124,8 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.
     version = payload.get("version")
     if version not in (1, VERSION):
         raise InputError(f"{path}: checkpoint version {version!r} is not supported (expected 1 or {VERSION})")
-    network = NETWORKS.get(payload.get("architecture"))
+    architecture = payload.get("architecture")
+    network = NETWORKS.get(architecture) if isinstance(architecture, str) else None
     if network is None:
         raise InputError(
             f"{path}: architecture {payload.get('architecture')!r} is not one of {', '.join(NETWORKS)}; "
@@ -172,14 +178,15 @@ def load_checkpoint(path: str | Path, window: int | None = None) -> tuple[torch.
     return net, info
 
 
-def _check_world(world: dict, window: int, path: Path) -> None:
+def _check_world(world: dict[str, Any], window: int, path: Path) -> None:
     """The stored world config, as WorldConfig validates one (finite numbers, ranges), with the network's window."""
-    known = {f.name: f.type for f in fields(WorldConfig)}
+    known = {f.name: str(f.type) for f in fields(WorldConfig)}  # names: the module's annotations are strings
     for key, value in world.items():
         kind = known.get(key)
         if kind is None:
             continue  # a field of a newer or older swarmctl, never read
-        types = {"int": int, "float": (int, float), "str": str, "bool": bool}.get(kind, object)
+        kinds: dict[str, type | tuple[type, ...]] = {"int": int, "float": (int, float), "str": str, "bool": bool}
+        types = kinds.get(kind, object)
         if not isinstance(value, types) or (kind != "bool" and isinstance(value, bool)):
             raise InputError(f"{path}: world.{key} = {value!r} is not a {kind}; use an intact checkpoint")
     try:
@@ -193,7 +200,7 @@ def _check_world(world: dict, window: int, path: Path) -> None:
         )
 
 
-def _misfit(expected: dict, given: dict) -> str | None:
+def _misfit(expected: dict[str, torch.Tensor], given: dict[str, torch.Tensor]) -> str | None:
     """The first difference between a network's state dict and a checkpoint's: a missing or unexpected
     key, or a shape, named (None when they fit)."""
     missing = [k for k in expected if k not in given]

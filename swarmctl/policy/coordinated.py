@@ -138,7 +138,15 @@ class CoordinatedPolicy:
             return np.zeros(len(targets), dtype=bool)
         return park_allowed(targets.sum((1, 2)), vehicles, self.hold)
 
-    def _assign_targets(self, dist, searching, cells, valid, park, step) -> np.ndarray:
+    def _assign_targets(
+        self,
+        dist: np.ndarray,
+        searching: np.ndarray,
+        cells: np.ndarray,
+        valid: np.ndarray,
+        park: np.ndarray,
+        step: int,
+    ) -> np.ndarray:
         """(M, N) the target slot of each searching vehicle or -1: the free targets, optimally, where
         parking is allowed or the step limit leaves just the time to reach them."""
         m, n = searching.shape
@@ -157,7 +165,17 @@ class CoordinatedPolicy:
             slot[i, r] = columns[c]
         return slot
 
-    def _explore(self, beliefs, hb, dist, explored, targets, pending, goals, has_goal) -> None:
+    def _explore(
+        self,
+        beliefs: Beliefs,
+        hb: np.ndarray,
+        dist: np.ndarray,
+        explored: np.ndarray,
+        targets: np.ndarray,
+        pending: np.ndarray,
+        goals: np.ndarray,
+        has_goal: np.ndarray,
+    ) -> None:
         """Exploration goals for the pending vehicles, in mission order (goals/has_goal updated)."""
         s = self.settings
         m, n, w, h = dist.shape
@@ -194,7 +212,17 @@ class CoordinatedPolicy:
             weight[near] *= np.float32(1.0 - s.discount)
             utility = None
 
-    def _navigate(self, beliefs, hb, positions, known, passable, dist, goals, has_goal) -> np.ndarray:
+    def _navigate(
+        self,
+        beliefs: Beliefs,
+        hb: np.ndarray,
+        positions: np.ndarray,
+        known: np.ndarray,
+        passable: np.ndarray,
+        dist: np.ndarray,
+        goals: np.ndarray,
+        has_goal: np.ndarray,
+    ) -> np.ndarray:
         """(M, N) moves one step towards each goal, in mission order, never into a cell another vehicle
         holds or an earlier one enters; a vehicle without a goal stays."""
         m, n = known.shape

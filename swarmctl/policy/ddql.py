@@ -157,7 +157,7 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
     if not rest:
         raise InputError(f"--policy {spec!r}: give the checkpoint, as in {kind}:models/cluster-2uav.pt")
     path, suffix = split_options(rest)
-    options = dict(re.findall(r":([a-z]+)=([^:]*)", suffix))
+    options: dict[str, str] = dict(re.findall(r":([a-z]+)=([^:]*)", suffix))
     tau: float | None = 0.1
     if "tau" in options:
         try:

@@ -8,6 +8,8 @@ inference forward for batches (swarmctl.policy.forward.OneDnnForward).
 
 from __future__ import annotations
 
+from typing import Any, TypeVar
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -24,30 +26,52 @@ def _fusable(x: torch.Tensor, weight: torch.Tensor, groups: int = 1) -> bool:
     cpu = x.device.type == "cpu" and x.dtype == torch.float32
     small = x.shape[0] == 1 and groups == 1 and min(weight.shape[-2:]) <= 3 and x.numel() <= 20480
     return (
-        POINTWISE and torch.backends.mkldnn.enabled and cpu and weight.is_contiguous(memory_format=_LAST) and not small
+        POINTWISE
+        and bool(torch.backends.mkldnn.enabled)
+        and cpu
+        and weight.is_contiguous(memory_format=_LAST)
+        and not small
     )
 
 
-def conv_relu(x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor | None, stride, padding, groups: int = 1):
+def conv_relu(
+    x: torch.Tensor,
+    weight: torch.Tensor,
+    bias: torch.Tensor | None,
+    stride: list[int],
+    padding: list[int],
+    groups: int = 1,
+) -> torch.Tensor:
     """relu(conv2d(x)), in one oneDNN primitive where it gives torch's numbers (_fusable), without
     gradients."""
     if not _fusable(x, weight, groups):
         return F.relu(F.conv2d(x, weight, bias, stride, padding, groups=groups))
-    return torch.ops.mkldnn._convolution_pointwise(x, weight, bias, padding, stride, [1, 1], groups, "relu", [], "")
+    y: torch.Tensor = torch.ops.mkldnn._convolution_pointwise(
+        x, weight, bias, padding, stride, [1, 1], groups, "relu", [], ""
+    )
+    return y
 
 
 class _ConvReLU(torch.autograd.Function):
     """conv_relu with the gradient autograd gives the two modules: ReLU's, then the convolution's."""
 
     @staticmethod
-    def forward(ctx, x, weight, bias, stride, padding, groups):
+    def forward(
+        ctx: Any,  # torch's FunctionCtx, which carries the attributes set here
+        x: torch.Tensor,
+        weight: torch.Tensor,
+        bias: torch.Tensor | None,
+        stride: list[int],
+        padding: list[int],
+        groups: int,
+    ) -> torch.Tensor:
         y = conv_relu(x, weight, bias, stride, padding, groups)
         ctx.save_for_backward(x, weight, y)
         ctx.conv = (stride, padding, groups, bias is not None)
         return y
 
     @staticmethod
-    def backward(ctx, grad):
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
         x, weight, y = ctx.saved_tensors
         stride, padding, groups, has_bias = ctx.conv
         grad = torch.ops.aten.threshold_backward(grad, y, 0)
@@ -74,10 +98,24 @@ class ConvReLU(nn.Conv2d):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not _fusable(x, self.weight, self.groups):
             return F.relu(super().forward(x))
-        return _ConvReLU.apply(x, self.weight, self.bias, list(self.stride), list(self.padding), self.groups)
+        result: torch.Tensor = _ConvReLU.apply(  # type: ignore[no-untyped-call]  # torch's apply is untyped
+            x, self.weight, self.bias, list(self.stride), list(self.padding), self.groups
+        )
+        return result
 
 
-def fuse_conv_relu(net: nn.Module) -> nn.Module:
+_M = TypeVar("_M", bound=nn.Module)
+
+
+def to_memory_format(net: _M, memory_format: torch.memory_format, device: torch.device | None = None) -> _M:
+    """`net.to(device, memory_format=memory_format)`: its parameters in that layout (on `device`, when
+    given); torch's stubs lack the keyword, which Module.to takes."""
+    args = () if device is None else (device,)
+    moved: _M = net.to(*args, memory_format=memory_format)  # type: ignore[call-overload]
+    return moved
+
+
+def fuse_conv_relu(net: _M) -> _M:
     """In place: in every Sequential of `net`, a Conv2d (zero padding, no dilation) followed by a
     ReLU becomes a ConvReLU with the same parameters and the ReLU an Identity; the state dict keeps
     its keys and shapes. Returns `net`."""

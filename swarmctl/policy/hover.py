@@ -16,6 +16,7 @@ mission, so a vehicle that parks stays parked, as HOVER does.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from swarmctl.world.beliefs import Beliefs
 
@@ -32,7 +33,7 @@ def park_allowed(known_targets: np.ndarray, vehicles: int, hold: int | None = No
     return np.asarray(known_targets) >= need
 
 
-def parking(rule: str, known_targets: np.ndarray, vehicles: int, hold: int | None = None) -> np.ndarray:
+def parking(rule: str, known_targets: npt.ArrayLike, vehicles: int, hold: int | None = None) -> np.ndarray:
     """Whether a vehicle on a free target parks there now under `rule`, per belief holder."""
     known_targets = np.asarray(known_targets)
     if rule == FIRST:
@@ -49,4 +50,5 @@ def parks(beliefs: Beliefs, rule: str, hold: int | None = None) -> np.ndarray:
         return here
     if rule == NO:
         return np.zeros(here.shape, dtype=bool)
-    return here & park_allowed(beliefs.targets.sum((2, 3)), beliefs.vehicles, hold)
+    result: np.ndarray = here & park_allowed(beliefs.targets.sum((2, 3)), beliefs.vehicles, hold)
+    return result

@@ -16,6 +16,8 @@ plan is the same whoever makes it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from swarmctl.policy.draws import CLAIMS, NAVIGATE, RANDOM, Draws, uniform
@@ -99,7 +101,12 @@ def assign_targets(dist: np.ndarray, active: np.ndarray, cells: np.ndarray, vali
 
 
 def nearest_unexplored(
-    dist: np.ndarray, explored: np.ndarray, pending: np.ndarray, noise, spread: float, goals: np.ndarray
+    dist: np.ndarray,
+    explored: np.ndarray,
+    pending: np.ndarray,
+    noise: Callable[[int], np.ndarray],
+    spread: float,
+    goals: np.ndarray,
 ) -> np.ndarray:
     """Goals for the `pending` (M, N) vehicles, in index order: the nearest reachable unexplored cell,
     avoiding the discs (radius `spread`) claimed by the vehicles before them when it can.
@@ -136,7 +143,7 @@ def navigate(pos: np.ndarray, goals: np.ndarray, passable: np.ndarray, ties: np.
     return step_towards(grid_distances(passable, src), pos, ties)
 
 
-def deciders_part(beliefs: Beliefs, plan) -> np.ndarray:
+def deciders_part(beliefs: Beliefs, plan: Callable[[Beliefs, np.ndarray, np.ndarray], np.ndarray]) -> np.ndarray:
     """(B, U, ...): each decider's own entry of the swarm plan its beliefs make, where
     plan(beliefs, hb, hu) gives (M, N, ...) for every vehicle as the holders (hb, hu) see the swarm.
     With shared beliefs the plan is made once per batch; holders go in chunks that bound memory."""

@@ -68,7 +68,8 @@ class QNetwork(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (N, 3, F, F) -> Q-values (N, 5)."""
-        return self.head(self.features(obs))
+        result: torch.Tensor = self.head(self.features(obs))
+        return result
 
 
 class GlobalLocalQNetwork(nn.Module):
@@ -104,14 +105,19 @@ class GlobalLocalQNetwork(nn.Module):
 
     def forward(self, obs: torch.Tensor) -> torch.Tensor:
         """obs (N, 7, F, F) -> Q-values (N, 5)."""
-        return self.head(torch.cat([self.local(obs[:, :3]), self.whole(obs[:, 3:])], dim=1))
+        result: torch.Tensor = self.head(torch.cat([self.local(obs[:, :3]), self.whole(obs[:, 3:])], dim=1))
+        return result
 
 
-NETWORKS = {QNetwork.architecture: QNetwork, GlobalLocalQNetwork.architecture: GlobalLocalQNetwork}
+QNet = QNetwork | GlobalLocalQNetwork  # the network of some observation variant (make_network)
+NETWORKS: dict[str, type[QNet]] = {
+    QNetwork.architecture: QNetwork,
+    GlobalLocalQNetwork.architecture: GlobalLocalQNetwork,
+}
 _BY_VARIANT = {cls.variant: cls for cls in NETWORKS.values()}
 
 
-def make_network(variant: str = PAPER_VARIANT, window: int = 20) -> nn.Module:
+def make_network(variant: str = PAPER_VARIANT, window: int = 20) -> QNet:
     """The network an observation variant needs, freshly initialised."""
     return _BY_VARIANT[variant](window)
 

@@ -3,12 +3,21 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, TypeAlias
+
 from swarmctl.errors import InputError
 from swarmctl.policy.coordinated import CoordinatedPolicy
 from swarmctl.policy.hover import HOVER_ALIASES, HOVER_RULES
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.planners import FrontierPolicy, LawnmowerPolicy, RandomPolicy
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.policy.ddql import DDQLPolicy  # imported when a spec asks for it (torch)
+
+# a policy that moves vehicles (swarmctl.policy.base.Policy, with a hover rule and a hold): every one
+# make_policy builds but the oracle bound
+Decider: TypeAlias = "RandomPolicy | LawnmowerPolicy | FrontierPolicy | CoordinatedPolicy | LookAhead | DDQLPolicy"
 
 POLICY_HELP = (
     "coordinated, frontier, lawnmower, la:N (N = 1..6), random, oracle, "
@@ -28,7 +37,7 @@ def _hover_option(spec: str, name: str, arg: str) -> tuple[str, str | None]:
     return head[:-1] if head else "", rule
 
 
-def make_policy(spec: str):
+def make_policy(spec: str) -> Decider | OracleBound:
     """Build the policy a spec names; InputError with the accepted forms otherwise."""
     spec = spec.strip()
     name, _, arg = spec.partition(":")
@@ -36,13 +45,22 @@ def make_policy(spec: str):
         return _make(spec, name, arg)
     arg, rule = _hover_option(spec, name, arg)
     policy = _make(spec, name, arg)
-    if rule is not None:
+    if rule is not None and not isinstance(policy, OracleBound):  # (the oracle takes no options)
         policy.hover = rule
         policy.name = spec
     return policy
 
 
-def _make(spec: str, name: str, arg: str):
+def make_decider(spec: str) -> Decider:
+    """make_policy for a policy that moves vehicles: InputError for the oracle, a bound that reads the
+    hidden targets."""
+    policy = make_policy(spec)
+    if isinstance(policy, OracleBound):
+        raise InputError(f"policy {spec!r} reads the hidden targets: it is a bound, not a policy that moves vehicles")
+    return policy
+
+
+def _make(spec: str, name: str, arg: str) -> Decider | OracleBound:
     if name == "random" and not arg:
         return RandomPolicy()
     if name == "lawnmower" and not arg:

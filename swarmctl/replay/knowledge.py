@@ -52,7 +52,7 @@ class KnowledgeTimeline:
     def explored(self, frame: int, vehicles: list[int] | None = None) -> np.ndarray:
         """(W, H) bool: cells known at `frame` by any of the vehicles (all when None)."""
         rows = self.first if vehicles is None else self.first[vehicles]
-        return (rows <= frame).any(axis=0) if len(rows) else np.zeros(self.first.shape[1:], dtype=bool)
+        return np.asarray((rows <= frame).any(axis=0)) if len(rows) else np.zeros(self.first.shape[1:], dtype=bool)
 
     def counts(self, frames: int, vehicles: list[int] | None = None) -> np.ndarray:
         """(frames,) int: cells known by the vehicles together at each frame."""
@@ -139,7 +139,7 @@ def from_tunnel(index: TlogIndex, frame_times: np.ndarray | None) -> TunnelKnowl
     msgs = [(t, m) for t, m in index.decode(unique) if m.payload_type in PAYLOAD_TYPE_BLOCK]
     if not msgs:
         return None
-    grids = Counter()
+    grids: Counter[tuple[int, int, int]] = Counter()
     for _t, m in msgs:
         if m.payload_length >= HEADER_SIZE:
             head = HEADER.unpack_from(bytes(m.payload))
@@ -160,7 +160,7 @@ def from_tunnel(index: TlogIndex, frame_times: np.ndarray | None) -> TunnelKnowl
         if frame_times is None:
             frame = int(msg.step)
         else:
-            frame = int(min(np.searchsorted(frame_times, t, side="left"), len(frame_times) - 1))
+            frame = min(int(np.searchsorted(frame_times, t, side="left")), len(frame_times) - 1)
         first = out.first.get(msg.sender)
         if first is None:
             first = out.first[msg.sender] = np.full((w, h), NEVER, dtype=np.int32)

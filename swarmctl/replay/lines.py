@@ -108,9 +108,9 @@ def read_lines(path: str | Path) -> Lines:
         if kind is None:
             out.unknown[str(obj["event"])] += 1
             continue
-        why = implausible(obj)
-        if why is not None:
-            out.damage.append(Damage(at, len(line), f"line {number}: {kind}: {why}"))
+        odd = implausible(obj)
+        if odd is not None:
+            out.damage.append(Damage(at, len(line), f"line {number}: {kind}: {odd}"))
             continue
         out.events.append(obj)
     return out

@@ -17,6 +17,7 @@ With `--vehicle`, the replay holds only those vehicles: the known map is what th
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -86,6 +87,7 @@ class PanelFigure:
             (self.known_targets,) = ax.plot([], [], "*", color="gold", mec="black", ms=11, ls="none")
         if "true" in self.axes:
             ax, truth = self.axes["true"], replay.truth
+            assert truth is not None  # the panel is there only with the truth
             true_value = np.where(g.blocked, -1.0, truth.value_map())
             self._cells(ax, true_value, extent)
             if len(truth.targets):
@@ -133,6 +135,7 @@ class PanelFigure:
         )
         if self.known_img is not None:
             k = r.knowledge
+            assert k is not None and self.known_targets is not None  # the panel is there only with knowledge
             explored = k.explored(frame)
             value = self.phi if self.phi is not None else np.zeros(explored.shape)
             shown = np.where(explored, np.where(r.grid.blocked, -1.0, value), np.nan)
@@ -200,7 +203,11 @@ class _Mp4:
         except ImportError:
             from matplotlib.animation import FFMpegWriter
 
-            self.writer = FFMpegWriter(fps=fps, codec="libx264", extra_args=["-pix_fmt", "yuv420p"])
+            self.writer = FFMpegWriter(
+                fps=fps,  # type: ignore[arg-type]  # matplotlib's stub says int; ffmpeg takes any rate
+                codec="libx264",
+                extra_args=["-pix_fmt", "yuv420p"],
+            )
             self.writer.setup(fig, str(path), dpi=fig.dpi)
             return
         w, h = (int(v) // 2 * 2 for v in fig.canvas.get_width_height())
@@ -217,12 +224,14 @@ class _Mp4:
             w, h = self.size
             self.gen.send(np.ascontiguousarray(rgb[:h, :w]).tobytes())
         else:
+            assert self.writer is not None  # no imageio-ffmpeg: matplotlib's writer
             self.writer.grab_frame()
 
     def close(self) -> None:
         if self.gen is not None:
             self.gen.close()
         else:
+            assert self.writer is not None
             self.writer.finish()
 
 
@@ -231,7 +240,7 @@ def write_animation(
     frames: list[int],
     out: Path,
     fps: float,
-    progress: Any = None,
+    progress: Callable[[int], object] | None = None,
 ) -> list[Path]:
     """animation.gif (and animation.mp4 when ffmpeg is found) over the given frames."""
     from PIL import Image

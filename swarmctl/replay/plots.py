@@ -34,17 +34,16 @@ def write_plots(replay: Replay, out: Path) -> list[Path]:
     x, label = _axis(replay)
     t0 = replay.frame_time[0]
     paths: list[Path] = []
-    counts = replay.cells_explored()
-    if counts is not None:
+    knowledge = replay.knowledge
+    if knowledge is not None:
+        counts = knowledge.counts(replay.frames)  # replay.cells_explored()
         fig, ax = plt.subplots(figsize=(6.4, 3.6))
         ax.plot(x, counts, color="black", lw=2, label="together")
         if len(replay.vehicles) <= 10:
             for k, v in enumerate(replay.vehicles):
-                ax.plot(x, replay.knowledge.counts(replay.frames, [k]), color=v.colour, lw=1, label=v.name)
+                ax.plot(x, knowledge.counts(replay.frames, [k]), color=v.colour, lw=1, label=v.name)
         ax.axhline(int((~replay.grid.blocked).sum()), color="grey", ls=":", lw=1, label="free cells")
-        ax.set(
-            xlabel=label, ylabel="cells explored", title=f"{replay.name}: cells explored ({replay.knowledge.source})"
-        )
+        ax.set(xlabel=label, ylabel="cells explored", title=f"{replay.name}: cells explored ({knowledge.source})")
         ax.legend(fontsize=7)
         paths.append(_save(fig, out / "explored.png"))
     if replay.kind == "recording" or replay.targets:
@@ -77,7 +76,9 @@ def write_plots(replay: Replay, out: Path) -> list[Path]:
     if with_battery:
         fig, ax = plt.subplots(figsize=(6.4, 3.4))
         for v in with_battery:
-            ax.plot(v.telemetry.battery_t - t0, v.telemetry.battery, color=v.colour, lw=1, label=v.name)
+            tel = v.telemetry
+            assert tel is not None  # (with_battery)
+            ax.plot(tel.battery_t - t0, tel.battery, color=v.colour, lw=1, label=v.name)
         ax.set(xlabel="time (s)", ylabel="battery (%)", ylim=(0, 101), title=f"{replay.name}: battery")
         if len(with_battery) <= 10:
             ax.legend(fontsize=7)

@@ -14,6 +14,7 @@ by the guarded move (the step line records where each vehicle was when the round
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,6 +33,8 @@ from swarmctl.replay.telemetry import GEOD, VehicleTelemetry, path_m, read_telem
 from swarmctl.replay.tlog import Damage, TlogIndex, index_tlog
 from swarmctl.replay.truth import TRUTH_FILE, Truth, load_truth
 from swarmctl.world.moves import MOVE_NAMES, MOVES
+
+Progress = Callable[[int], object]  # a progress bar's update
 
 MAX_TIME_FRAMES = 400
 FRAME_BYTES = 64  # per vehicle and frame: cell (16), lat and lon (16), state, and the page's copies
@@ -153,7 +156,7 @@ def load(
     vehicles: list[str] | None = None,
     grid_file: str | Path | None = None,
     buildings: str | Path | None = None,
-    progress: Any = None,
+    progress: Progress | None = None,
 ) -> Replay:
     """Read a recording folder or a bare .tlog (InputError, one line, when it cannot be replayed)."""
     path = Path(path)
@@ -165,7 +168,7 @@ def load(
 
 
 class _Loader:
-    def __init__(self, folder: Path, progress: Any):
+    def __init__(self, folder: Path, progress: Progress | None):
         self.folder, self.progress = folder, progress
         self.damage: dict[str, list[Damage]] = {}
         self.notes: list[str] = []
@@ -180,7 +183,7 @@ class _Loader:
         return self._tunnel[id(tlog)]
 
     # --- the two kinds of input -----------------------------------------------------------------------
-    def recording(self, only: list[str] | None, grid_file: Any, buildings: Any) -> Replay:
+    def recording(self, only: list[str] | None, grid_file: str | Path | None, buildings: str | Path | None) -> Replay:
         folder = self.folder
         events_path, tlog_path = folder / "events.jsonl", folder / "mission.tlog"
         if not events_path.is_file() and not tlog_path.is_file():
@@ -208,7 +211,9 @@ class _Loader:
         if not names:
             return self.bare_tlog(tlog_path, only, grid_file, buildings, tlog=tlog, telemetry=telemetry)
         steps = _step_lines(lines)
+        frame_step: np.ndarray | None
         if steps:
+            assert lines is not None  # the steps are its lines
             require_memory(
                 (max(steps) + 1) * len(names) * FRAME_BYTES,
                 f"{events_path}: {max(steps) + 1:,} frames of {len(names)} vehicles",
@@ -246,8 +251,8 @@ class _Loader:
         self,
         path: Path,
         only: list[str] | None,
-        grid_file: Any,
-        buildings: Any,
+        grid_file: str | Path | None,
+        buildings: str | Path | None,
         tlog: TlogIndex | None = None,
         telemetry: dict | None = None,
     ) -> Replay:
@@ -272,7 +277,7 @@ class _Loader:
         replay = Replay(path, "tlog", path.stem, grid, note, vehicles, names, frame_time, frame_step)
         return self._finish(replay, tlog, buildings)
 
-    def _finish(self, replay: Replay, tlog: TlogIndex | None, buildings: Any) -> Replay:
+    def _finish(self, replay: Replay, tlog: TlogIndex | None, buildings: str | Path | None) -> Replay:
         """Knowledge, targets, truth, buildings and what was skipped, for either kind of input."""
         replay.tlog = tlog
         self._knowledge(replay, tlog)
@@ -310,7 +315,9 @@ class _Loader:
             )
         return telemetry
 
-    def _recording_grid(self, grid_file: Any, mission: dict | None, telemetry: dict, tlog, frame_time: np.ndarray):
+    def _recording_grid(
+        self, grid_file: str | Path | None, mission: dict | None, telemetry: dict, tlog, frame_time: np.ndarray
+    ):
         """The recording's own grid.npz; --grid only for a recording without one, and then it must be the
         size the mission line flew."""
         own = self.folder / "grid.npz"
@@ -344,7 +351,7 @@ class _Loader:
                     out.setdefault(r["vehicle"], int(r["sysid"]))
         return out
 
-    def _grid(self, grid_file: Any, telemetry: dict, tlog: TlogIndex | None, frame_time: np.ndarray):
+    def _grid(self, grid_file: str | Path | None, telemetry: dict, tlog: TlogIndex | None, frame_time: np.ndarray):
         if grid_file is not None and Path(grid_file).is_file():
             return GeoGrid.load(grid_file), f"grid {Path(grid_file).name}"
         if grid_file is not None and Path(grid_file).name != "grid.npz":
@@ -509,7 +516,7 @@ class _Loader:
         if path.is_file():
             replay.truth = load_truth(path, replay.grid.width, replay.grid.height)
 
-    def _buildings(self, replay: Replay, path: Any) -> None:
+    def _buildings(self, replay: Replay, path: str | Path | None) -> None:
         g = replay.grid
         candidates = [Path(path)] if path is not None else []
         if path is None and g.buildings_name:

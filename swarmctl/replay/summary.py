@@ -40,7 +40,7 @@ def summary_lines(replay: Replay) -> list[str]:
         lines.append(f"policy {replay.policy}")
     k = replay.knowledge
     lines.append(
-        f"knowledge from {k.source}: {int(replay.cells_explored()[-1])} cells explored together"
+        f"knowledge from {k.source}: {int(k.counts(replay.frames)[-1])} cells explored together"
         if k is not None
         else "knowledge: none in this recording (no snapshots, no swarmctl TUNNEL messages)"
     )

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import os
 import stat
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -195,7 +195,7 @@ def read_tlog(path: Path) -> bytes:
     return read_limited(path, "telemetry log (.tlog)", TLOG_MAX_BYTES)
 
 
-def index_tlog(path: str | Path, progress: Any = None) -> TlogIndex:
+def index_tlog(path: str | Path, progress: Callable[[int], object] | None = None) -> TlogIndex:
     """Index every valid record of a .tlog; InputError (one line) for an empty file or one that holds no
     MAVLink telemetry at all. `progress(bytes_done)` is called now and then."""
     path = Path(path)

@@ -342,7 +342,8 @@ def verify(
     for s, e in steps.items():
         if e["vehicles"] and s not in rounds:
             report.unchecked["no inputs line for the round"] += len(e["vehicles"])
-    decoder = InputsDecoder(*mission["grid"], len(names))
+    width, height = mission["grid"]
+    decoder = InputsDecoder(width, height, len(names))
     if total is not None:
         total(len(rounds))
     for s in sorted(rounds):
@@ -377,8 +378,10 @@ def _round(
     inner = policy.policy
     if isinstance(inner, DDQLPolicy):
         decided: list[Any] = _network(inner, beliefs)
+        tau = inner.tau
     else:
         decided = [int(m) for m in inner.act(beliefs)[0]]
+        tau = None  # (planners' decisions are ints, never a _Network)
     if record is None:
         return
     missing = set(recorded) - set(line["vehicles"])
@@ -390,7 +393,7 @@ def _round(
         if r is None:
             continue
         if isinstance(d, _Network):
-            verdict = judge_network(r, d, inner.tau, report.min_probability)
+            verdict = judge_network(r, d, tau, report.min_probability)
             move = d.move
         else:
             move = d
@@ -402,10 +405,11 @@ def _round(
         elif verdict == "probable":
             report.probable += 1
         else:
+            assert isinstance(verdict, tuple)  # a mismatch: (why, p)
             why, p = verdict
             wrong = Mismatch(step, name, r["move"], MOVE_NAMES[move], why, p)
-            if isinstance(d, _Network) and inner.tau is not None and d.by is None:  # a softmax move
-                probs = _probabilities(d.q, d.allowed, inner.tau)
+            if isinstance(d, _Network) and tau is not None and d.by is None:  # a softmax move
+                probs = _probabilities(d.q, d.allowed, tau)
                 wrong.probability = float(probs[MOVE_NAMES.index(r["move"])])
                 wrong.recomputed_probability = float(probs[move])
             report.mismatches.append(wrong)

@@ -40,7 +40,7 @@ import random
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -117,6 +117,7 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         seed: int | None = None,
         tick: float = 0.02,
         reposition_frames: Collection[int] | None = None,
+        params: Mapping[str, float] | None = None,
     ):
         self.personality: Personality = personality_named(autopilot)  # ValueError naming the choices
         if not 1 <= sysid <= 255:
@@ -162,6 +163,8 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         for name in ("MAV_SYSID", "MAV_SYS_ID"):  # ArduPilot 4.7, PX4
             if name in self.params:
                 self.params[name] = float(sysid)
+        # parameters set otherwise than the personality's defaults (e.g. FS_GCS_ENABLE=0: no GCS failsafe)
+        self.params.update({name: float(value) for name, value in (params or {}).items()})
         # the frames a COMMAND_INT reposition is taken in (None: the personality's; e.g. {MAV_FRAME_GLOBAL}
         # for a PX4 that refuses GLOBAL_INT)
         self.reposition_frames = (
@@ -391,9 +394,11 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
     def _receive(self, data: bytes, now: float) -> None:
         """One read's bytes (a datagram on UDP), subject to the blackout and packet-loss faults."""
         if now >= self._down_until and self.rng.random() >= self.packet_loss:
-            msgs = parse_bytes(self.mav, data, self._transport.datagrams)
+            transport = self._transport
+            assert transport is not None  # it receives only while started
+            msgs = parse_bytes(self.mav, data, transport.datagrams)
             if any(valid_frame(m) for m in msgs):
-                self._transport.accept_source()  # udpin: answer this address from now on
+                transport.accept_source()  # udpin: answer this address from now on
             for msg in msgs:
                 if self.latency > 0:
                     heapq.heappush(self._delayed, (now + self.latency, next(self._seq), "in", msg))

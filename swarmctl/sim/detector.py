@@ -12,7 +12,7 @@ import logging
 import socket
 import threading
 import time
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +20,10 @@ from swarmctl.knowledge.codec import PAYLOAD_SIZE, KnowledgeCodec
 from swarmctl.knowledge.model import Delta, Detection, disc_cells, quantise_phi
 from swarmctl.mavlink.codec import distance_m
 from swarmctl.world.scenario import value_map
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.geo.grid import GeoGrid
+    from swarmctl.sim.autopilot import MockAutopilot
 
 log = logging.getLogger(__name__)
 
@@ -35,7 +39,7 @@ class SimDetector:
 
     def __init__(
         self,
-        grid: Any,
+        grid: GeoGrid,
         targets: np.ndarray,
         vehicle_index: int,
         mission_id: int,
@@ -64,7 +68,7 @@ class SimDetector:
         self.sent_reports = 0
         self._centres = grid.cells_to_latlon(*np.meshgrid(np.arange(w), np.arange(h), indexing="ij"))
 
-    def attach(self, mock: Any) -> SimDetector:
+    def attach(self, mock: MockAutopilot) -> SimDetector:
         mock.step_hooks.append(self._hook)
         return self
 
@@ -73,7 +77,7 @@ class SimDetector:
             self._sock.close()
             self._sock = None
 
-    def _hook(self, mock: Any, _dt: float) -> None:
+    def _hook(self, mock: MockAutopilot, _dt: float) -> None:
         cell = self.cell_to_report(mock.armed, mock.lat, mock.lon, mock.rel_alt)
         if cell is not None:
             self.report(mock, cell)
@@ -115,7 +119,7 @@ class SimDetector:
         out += self.codec.encode(Delta(self.vehicle_index, step, cell, False, cells, quantise_phi(phi), obstacle))
         return out
 
-    def report(self, mock: Any, cell: tuple[int, int]) -> None:
+    def report(self, mock: MockAutopilot, cell: tuple[int, int]) -> None:
         payloads = self.payloads(cell)
         self.sent_reports += 1
         if self.udp is None:

@@ -6,21 +6,25 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import from_deg_e7, offset_m, to_deg_e7
 from swarmctl.mavlink.transport import valid_frame
 from swarmctl.sim.fence import FENCE
+from swarmctl.sim.mock_base import MockBase
 from swarmctl.sim.mock_telemetry import STREAMABLE
+
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.sim.autopilot import MockAutopilot
 
 MAV = mavlink2
 
 MAV_RESULT_UNSUPPORTED_MAV_FRAME = 9  # newer than this pymavlink dialect
 
 
-class MockCommands:
+class MockCommands(MockBase):
     """MockAutopilot's input side: `_handle(msg)` acts on one received message, with the lock held."""
 
     def _for_me(self, msg: Any) -> bool:
@@ -77,7 +81,7 @@ class MockCommands:
             if msg.tc1 == 0:
                 self.send_message(self.mav.timesync_encode(time.monotonic_ns(), msg.ts1))
         elif mtype == "TUNNEL" and self.tunnel_handler is not None:
-            self.tunnel_handler(self, msg)
+            self.tunnel_handler(cast("MockAutopilot", self), msg)  # a part of one
 
     # commands ------------------------------------------------------------------------------------------
 

@@ -9,13 +9,14 @@ import math
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import distance_m, ne_m, offset_m
+from swarmctl.sim.mock_base import MockBase
 
 MAV = mavlink2
 
 PREARM_DISPLAY_S = 30.0  # simulated seconds between two "PreArm: ..." texts with the same reason
 
 
-class MockFlight:
+class MockFlight(MockBase):
     """MockAutopilot's physics: `_step(dt, now)` advances the simulated vehicle by `dt` simulated
     seconds, with the lock held."""
 

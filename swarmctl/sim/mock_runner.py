@@ -43,6 +43,7 @@ class MockRunner:
     def remove(self, mock: MockAutopilot) -> None:
         with self._lock:
             if self._mocks.pop(mock, 1) is None:
+                assert isinstance(mock._transport, UdpTransport)  # add() took only those; stop() keeps it till here
                 self._sockets.unregister(mock._transport.sock)
 
     def stop(self) -> None:
@@ -84,9 +85,11 @@ class MockRunner:
     @staticmethod
     def _read(mock: MockAutopilot, now: float) -> None:
         """What the mock's socket holds, up to 64 datagrams (the rest at the next turn)."""
+        transport = mock._transport
+        assert transport is not None  # removed from the runner before it is closed
         for _ in range(64):
             try:
-                data = mock._transport.read(0)
+                data = transport.read(0)
             except (OSError, ValueError):
                 return
             if not data:

@@ -10,6 +10,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from swarmctl.mavlink.codec import offset_m, to_deg_e7
+from swarmctl.sim.mock_base import MockBase
 
 MAV = mavlink2
 
@@ -42,7 +43,7 @@ STREAMABLE = frozenset(
 )
 
 
-class MockTelemetry:
+class MockTelemetry(MockBase):
     """MockAutopilot's output side: the heartbeat each second and every stream when it is due (`_emit`,
     called after each physics step), and each message built from the vehicle's state (`_build`)."""
 

@@ -23,7 +23,7 @@ from swarmctl.mavlink.autopilots.base import Autopilot
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT, PX4, px4_decode
 
 if TYPE_CHECKING:  # pragma: no cover
-    from swarmctl.sim.autopilot import MockAutopilot
+    from swarmctl.sim.mock_base import MockBase
 
 _RESULTS = {name: getattr(MAV, f"MAV_RESULT_{name}") for name in ("TEMPORARILY_REJECTED", "FAILED")}
 _CAPABILITIES = (
@@ -105,18 +105,18 @@ class Personality(abc.ABC):
         """HEARTBEAT.base_mode while disarmed (MAV_MODE_FLAG_SAFETY_ARMED is added when armed)."""
 
     @abc.abstractmethod
-    def refuse_mode(self, mock: MockAutopilot, custom_mode: int) -> int | None:
+    def refuse_mode(self, mock: MockBase, custom_mode: int) -> int | None:
         """The MAV_RESULT refusing a change to custom_mode (saying why in a STATUSTEXT), or None to allow it."""
 
     @abc.abstractmethod
-    def takeoff(self, mock: MockAutopilot, param7: float) -> int:
+    def takeoff(self, mock: MockBase, param7: float) -> int:
         """MAV_CMD_NAV_TAKEOFF with this param7: start the climb (mock.target) or refuse."""
 
-    def takeoff_reached(self, mock: MockAutopilot) -> None:  # noqa: B027 - without a takeoff_mode, never called
+    def takeoff_reached(self, mock: MockBase) -> None:  # noqa: B027 - without a takeoff_mode, never called
         """The take-off altitude is reached in the takeoff_mode."""
 
     @abc.abstractmethod
-    def reposition_outside_fence(self, mock: MockAutopilot) -> int:
+    def reposition_outside_fence(self, mock: MockBase) -> int:
         """DO_REPOSITION to a point the enforced fence excludes: the MAV_RESULT, and what the vehicle does."""
 
     @abc.abstractmethod
@@ -124,7 +124,7 @@ class Personality(abc.ABC):
         """A stored fence is enforced, given the DO_FENCE_ENABLE switch and the parameters."""
 
     @abc.abstractmethod
-    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
+    def gcs_loss(self, mock: MockBase) -> tuple[float, float, str] | None:
         """The failsafe on a lost ground-station link (wall seconds without its heartbeat): (the loss
         timeout, seconds of hold before the action, the action's mode); None: no failsafe."""
 
@@ -136,8 +136,8 @@ class ArduPilotPersonality(Personality):
     boot_mode = "STABILIZE"
     boot_resets_mode = True  # SITL: GUIDED accepted and reported in BOOT, STABILIZE at "ArduPilot Ready"
     rtl_alt = 15.0  # RTL_ALT 1500 cm
-    default_streams: Mapping[int, float] = {}  # a fresh ArduPilot sends only heartbeats
-    params: Mapping[str, float] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return
+    default_streams: ClassVar[Mapping[int, float]] = {}  # a fresh ArduPilot sends only heartbeats
+    params: ClassVar[Mapping[str, float]] = {  # ArduCopter 4.7's defaults: the fence, the speeds, the return
         "FENCE_ENABLE": 0.0,
         "FENCE_TYPE": 7.0,  # 1 max altitude + 2 circle round home + 4 polygon
         "FENCE_RADIUS": 300.0,
@@ -155,6 +155,12 @@ class ArduPilotPersonality(Personality):
         "RTL_LOIT_TIME": 0.0,  # ms; the mock does not wait over home (ArduCopter: 5000)
         "MAV_SYSID": 1.0,
         "MAV_GCS_SYSID": 255.0,
+        # the failsafes swarmctl reads at preflight; FS_GCS_ENABLE is 1 (RTL) here, as a vehicle set up for
+        # swarmctl has it (docs/vehicles.md), not ArduCopter's 0, so a default mission flies the mock; 0
+        # (MockAutopilot(params=...)) turns the mock's GCS failsafe off, as on ArduCopter
+        "FS_GCS_ENABLE": 1.0,
+        "FS_GCS_TIMEOUT": 5.0,  # s; the mock's own timeout is its gcs_failsafe_timeout
+        "BATT_FS_LOW_ACT": 0.0,  # ArduCopter's default: warn only
     }
     physics_params = {
         "WPNAV_SPEED": ("speed", 0.01),
@@ -211,7 +217,7 @@ class ArduPilotPersonality(Personality):
             | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
         )
 
-    def refuse_mode(self, mock: MockAutopilot, custom_mode: int) -> int | None:
+    def refuse_mode(self, mock: MockBase, custom_mode: int) -> int | None:
         name = self.autopilot.mode_name(custom_mode)
         if custom_mode not in self.autopilot.modes.values():
             mock.statustext("Flight mode change failed", MAV.MAV_SEVERITY_WARNING)
@@ -222,7 +228,7 @@ class ArduPilotPersonality(Personality):
             return MAV.MAV_RESULT_FAILED
         return None
 
-    def takeoff(self, mock: MockAutopilot, param7: float) -> int:
+    def takeoff(self, mock: MockBase, param7: float) -> int:
         # GUIDED (or AUTO), armed, on the ground; param7 is metres above home
         if mock.mode_name != self.autopilot.command_mode or not mock.armed or mock.rel_alt > 0.05:
             return MAV.MAV_RESULT_FAILED
@@ -231,15 +237,19 @@ class ArduPilotPersonality(Personality):
         mock.target = (mock.lat, mock.lon, float(param7))
         return MAV.MAV_RESULT_ACCEPTED
 
-    def reposition_outside_fence(self, mock: MockAutopilot) -> int:
+    def reposition_outside_fence(self, mock: MockBase) -> int:
         return MAV.MAV_RESULT_FAILED  # the guided destination is refused
 
     def fence_enforced(self, enabled: bool, params: Mapping[str, float]) -> bool:
         return enabled
 
-    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
-        # FS_GCS_ENABLE as the mock's gcs_failsafe_timeout says: RTL at once
-        return None if mock.gcs_failsafe_timeout is None else (mock.gcs_failsafe_timeout, 0.0, "RTL")
+    def gcs_loss(self, mock: MockBase) -> tuple[float, float, str] | None:
+        # after the mock's gcs_failsafe_timeout (None: off), the action FS_GCS_ENABLE says at once (0: off;
+        # land for 4, 5 and 7, the mock's RTL for the others: it has no SmartRTL or brake)
+        enable = int(mock.params.get("FS_GCS_ENABLE", 0.0))
+        if enable == 0 or mock.gcs_failsafe_timeout is None:
+            return None
+        return mock.gcs_failsafe_timeout, 0.0, "LAND" if enable in (4, 5, 7) else "RTL"
 
 
 class PX4Personality(Personality):
@@ -249,18 +259,21 @@ class PX4Personality(Personality):
     autopilot = PX4
     boot_mode = "HOLD"  # AUTO.LOITER on the ground, custom_mode 0x03040000, base_mode 29
     boot_status = MAV.MAV_STATE_UNINIT  # system_status 0, then 3 (standby) at 4.3 s of 5.3
-    default_streams: Mapping[int, float] = {  # the API link's streams, unasked (PX4 SITL, Hz over 5 s)
+    default_streams: ClassVar[Mapping[int, float]] = {  # the API link's streams, unasked (PX4 SITL, Hz over 5 s)
         MAV.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.02,  # 49.6 Hz
         MAV.MAVLINK_MSG_ID_GPS_RAW_INT: 0.125,  # 8 Hz
         MAV.MAVLINK_MSG_ID_SYS_STATUS: 0.2,  # 5 Hz
         MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 0.2,  # 5 Hz
         MAV.MAVLINK_MSG_ID_HOME_POSITION: 2.5,  # 0.4 Hz
     }
-    params: Mapping[str, float] = {  # PX4 SITL's defaults of the parameters a PX4 ground station touches
+    params: ClassVar[Mapping[str, float]] = {  # PX4 SITL's defaults of the parameters a PX4 ground station touches
         "MIS_TAKEOFF_ALT": 2.5,
         "MPC_XY_CRUISE": 5.0,
         "RTL_RETURN_ALT": 30.0,
-        "NAV_DLL_ACT": 0.0,  # data-link loss action: 0 off, 1 hold, 2 return, 3 land
+        # data-link loss action: 0 off (PX4's default), 1 hold, 2 return, 3 land; 2 here, as a vehicle set
+        # up for swarmctl has it (docs/vehicles.md), so a default mission flies the mock
+        "NAV_DLL_ACT": 2.0,
+        "COM_LOW_BAT_ACT": 3.0,  # as PX4 SITL reads it: return at critical level, land at emergency level
         "COM_DL_LOSS_T": 10.0,  # s without a GCS heartbeat before the link counts as lost
         "COM_FAIL_ACT_T": 5.0,  # s of hold before the failsafe's action
         "COM_OF_LOSS_T": 1.0,
@@ -320,7 +333,7 @@ class PX4Personality(Personality):
             return base | MAV.MAV_MODE_FLAG_GUIDED_ENABLED | MAV.MAV_MODE_FLAG_AUTO_ENABLED
         return base | MAV.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
 
-    def refuse_mode(self, mock: MockAutopilot, custom_mode: int) -> int | None:
+    def refuse_mode(self, mock: MockBase, custom_mode: int) -> int | None:
         name = self.autopilot.mode_name(custom_mode)
         if name.startswith("PX4("):  # not a mode PX4 has
             return MAV.MAV_RESULT_UNSUPPORTED
@@ -333,7 +346,7 @@ class PX4Personality(Personality):
             return MAV.MAV_RESULT_TEMPORARILY_REJECTED
         return None
 
-    def takeoff(self, mock: MockAutopilot, param7: float) -> int:
+    def takeoff(self, mock: MockBase, param7: float) -> int:
         # param7 is AMSL (NaN: MIS_TAKEOFF_ALT above home); switches to AUTO.TAKEOFF
         if not mock.armed:
             return MAV.MAV_RESULT_TEMPORARILY_REJECTED
@@ -344,10 +357,10 @@ class PX4Personality(Personality):
         mock.target = (mock.lat, mock.lon, float(rel))
         return MAV.MAV_RESULT_ACCEPTED
 
-    def takeoff_reached(self, mock: MockAutopilot) -> None:
+    def takeoff_reached(self, mock: MockBase) -> None:
         mock.custom_mode = self.autopilot.custom_mode(self.autopilot.command_mode)  # AUTO.TAKEOFF -> HOLD
 
-    def reposition_outside_fence(self, mock: MockAutopilot) -> int:
+    def reposition_outside_fence(self, mock: MockBase) -> int:
         # the commander acks, the navigator holds and says why
         mock._set_mode_name(self.autopilot.command_mode)
         mock.statustext("Reposition is outside geofence", MAV.MAV_SEVERITY_CRITICAL)
@@ -356,7 +369,7 @@ class PX4Personality(Personality):
     def fence_enforced(self, enabled: bool, params: Mapping[str, float]) -> bool:
         return params.get("GF_ACTION", 0.0) != 0.0
 
-    def gcs_loss(self, mock: MockAutopilot) -> tuple[float, float, str] | None:
+    def gcs_loss(self, mock: MockBase) -> tuple[float, float, str] | None:
         # NAV_DLL_ACT after COM_DL_LOSS_T, holding COM_FAIL_ACT_T first (SITL: critical at 11.7 s, RTL at
         # 16.7 s with the defaults 10 and 5); the mock's gcs_failsafe_timeout None switches it off too
         action = {1: "HOLD", 2: "RTL", 3: "LAND"}.get(int(mock.params.get("NAV_DLL_ACT", 0.0)))

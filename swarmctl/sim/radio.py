@@ -32,6 +32,7 @@ import socket
 import threading
 import time
 from collections import Counter
+from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -141,7 +142,7 @@ class Radio:
                     with self._lock:
                         self.received += 1
 
-    def _split(self, data: bytes) -> list[tuple[bytes, object]]:
+    def _split(self, data: bytes) -> list[tuple[bytes, Any]]:
         """(frame bytes, parsed message or None) for each frame in the datagram; if anything in it
         does not parse, the whole datagram is one unparsed piece (forwarded as it is)."""
         try:

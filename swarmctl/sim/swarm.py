@@ -13,7 +13,8 @@ from __future__ import annotations
 import math
 import socket
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -28,6 +29,10 @@ from swarmctl.sim.mock_runner import MockRunner
 from swarmctl.sim.radio import Radio
 from swarmctl.world.channel import Channel
 
+if TYPE_CHECKING:  # pragma: no cover
+    from swarmctl.geo.grid import GeoGrid
+    from swarmctl.mission.decide import FieldPolicy
+
 HOME_AMSL = 180.0  # metres; the Chicago Loop is about 180 m above sea level
 
 
@@ -37,14 +42,14 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def _region(grid: Any) -> np.ndarray:
+def _region(grid: GeoGrid) -> np.ndarray:
     free = grid.largest_free_region()
     if not free.any():
         raise ValueError("the grid has no free cell")
     return free
 
 
-def start_cells(grid: Any, count: int) -> list[tuple[int, int]]:
+def start_cells(grid: GeoGrid, count: int) -> list[tuple[int, int]]:
     """Launch cells along the south edge of the largest free region, two cells apart where possible."""
     free = _region(grid)
     cells = sorted(((int(x), int(y)) for x, y in zip(*np.nonzero(free))), key=lambda c: (c[1], c[0]))
@@ -59,7 +64,9 @@ def start_cells(grid: Any, count: int) -> list[tuple[int, int]]:
     raise ValueError(f"the grid's free region has room for {len(chosen)} vehicles, not {count}")
 
 
-def hide_targets(grid: Any, count: int, seed: int, avoid: list[tuple[int, int]], min_distance: int = 6) -> np.ndarray:
+def hide_targets(
+    grid: GeoGrid, count: int, seed: int, avoid: list[tuple[int, int]], min_distance: int = 6
+) -> np.ndarray:
     """`count` distinct target cells in the largest free region, at least `min_distance` cells
     (Manhattan) from every launch cell, drawn with `seed`."""
     rng = np.random.default_rng(seed)
@@ -83,7 +90,7 @@ class SimSwarm:
     no detectors, the mission is a coverage search). `channel` is the knowledge channel model: of the
     in-process bus in ground mode, of the loopback radio with `plan(..., radio=True)`."""
 
-    grid: Any
+    grid: GeoGrid
     uavs: int = 3
     seed: int = 0
     speedup: float = 20.0
@@ -94,6 +101,9 @@ class SimSwarm:
     autopilots: list[str] | None = None
     channel: Channel | None = None
     gcs_failsafe: float | None = 5.0
+    # parameters every mock is given otherwise than its personality's defaults (e.g. FS_GCS_ENABLE=0 or
+    # NAV_DLL_ACT=0: the GCS failsafe off, which preflight refuses unless allow_no_failsafe = true)
+    params: dict[str, float] | None = None
     speed: float = 10.0  # m/s, a usual cruise speed for search quadcopters
     # the mock ArduPilots' FENCE_RADIUS (their circle fence round home); None: as a vehicle set up for
     # this area would have it, reaching the grid's fence from the launch cell (at least the default 300 m)
@@ -114,6 +124,7 @@ class SimSwarm:
         self.autopilots = list(self.autopilots or ["ardupilot"] * self.uavs)
 
     def start(self) -> SimSwarm:
+        assert self.autopilots is not None and self.targets is not None  # set by __post_init__
         self.runner = MockRunner()
         try:
             for i, cell in enumerate(self.starts):
@@ -138,6 +149,7 @@ class SimSwarm:
                     gcs_failsafe_timeout=self.gcs_failsafe,
                     speed=self.speed,
                     seed=self.seed * 1000 + i,
+                    params=self.params,
                 )
                 if "FENCE_RADIUS" in mock.params:  # ArduPilot's circle fence round home
                     mock.params["FENCE_RADIUS"] = self._fence_radius(lat, lon)
@@ -161,11 +173,10 @@ class SimSwarm:
                     sensor = None
                 else:
                     sensor = ON_LINK if detector is None else f"udp:{detector[0]}:{detector[1]}"
-                self.specs.append(
-                    VehicleSpec(
-                        name=f"uav{sysid}", connection=connection, sysid=sysid, autopilot=autopilot, detector=sensor
-                    )
+                fields = dict(
+                    name=f"uav{sysid}", connection=connection, sysid=sysid, autopilot=autopilot, detector=sensor
                 )
+                self.specs.append(VehicleSpec.model_validate(fields))  # the strings parsed as from a mission file
         except BaseException:
             self.stop()
             raise
@@ -179,7 +190,9 @@ class SimSwarm:
         reach = farthest_metres(self._fence, lat, lon)
         return float(max(300, math.ceil(reach / 50.0) * 50))
 
-    def plan(self, policy: Any, base: MissionSpec | None = None, radio: bool = False, **settings: Any) -> MissionPlan:
+    def plan(
+        self, policy: FieldPolicy | str, base: MissionSpec | None = None, radio: bool = False, **settings: Any
+    ) -> MissionPlan:
         """The plan that flies this swarm (see `sim_plan`): ground mode, knowledge on the in-process bus
         with the swarm's channel model; with `radio`, the loopback radio (started here, with that
         model) is the plan's knowledge channel, for controllers in separate processes (give each its
@@ -195,7 +208,7 @@ class SimSwarm:
             self.grid,
             self.specs,
             policy,
-            channel=self.radio.address if radio else None,
+            channel=self.radio.address if radio and self.radio is not None else None,  # (started above)
             bus_channel=self.channel,
             base=base,
             seed=self.seed,
@@ -204,7 +217,7 @@ class SimSwarm:
         )
         self.fov = plan.fov
         for d in self.detectors:
-            d.altitude, d.fov = plan.spec.mission.altitude, plan.fov
+            d.altitude, d.fov = plan.altitude, plan.fov
         return plan
 
     def stop(self) -> None:
@@ -225,9 +238,9 @@ class SimSwarm:
 
 
 def sim_plan(
-    grid: Any,
+    grid: GeoGrid,
     vehicles: list[VehicleSpec],
-    policy: Any,
+    policy: FieldPolicy | str,
     /,
     *,
     channel: tuple[str, int] | None = None,
@@ -235,7 +248,7 @@ def sim_plan(
     base: MissionSpec | None = None,
     seed: int = 0,
     mission_id: int = 7,
-    mission_file: Any = None,
+    mission_file: Path | None = None,
     **settings: Any,
 ) -> MissionPlan:
     """The plan for simulated vehicles on `grid`: `base`'s settings (a mission file's; else the

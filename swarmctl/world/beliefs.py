@@ -17,11 +17,13 @@ trained with in its checkpoint, so the field observes exactly as the simulator d
 from __future__ import annotations
 
 import copy
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields, replace
 from functools import cached_property
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from swarmctl.world.moves import block_starts
 from swarmctl.world.taken import remove_taken_targets
@@ -29,6 +31,11 @@ from swarmctl.world.taken import remove_taken_targets
 SMALL = 16  # deciders x vehicles up to which the decision rules read the swarm as Python ints (Beliefs.crews)
 
 PAPER_VARIANT = "venturini2021"  # the paper's F x F, 3-channel observation
+
+# a decider's own cell (x, y), whether it hovers, and the (x, y, hovering) of each other vehicle it knows of
+Crew = tuple[Sequence[int], bool, Sequence[Sequence[int]]]
+# a grid-sized field given to Beliefs: an array, a callable computing it when first read, or None
+MapSource = npt.ArrayLike | Callable[[], npt.ArrayLike] | None
 GLOBAL_LOCAL_VARIANT = "global-local-v1"  # the paper's window + the whole map pooled (world.observe_global)
 VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7}  # observation channels of each variant
 
@@ -48,7 +55,7 @@ class ObservationSettings:
     @classmethod
     def from_world(cls, world: Any, phi_tolerance: float = 1e-6) -> ObservationSettings:
         """The settings of a WorldConfig or of a checkpoint's stored world dict."""
-        get = world.get if isinstance(world, dict) else lambda k, d: getattr(world, k, d)
+        get: Callable[[str, Any], Any] = world.get if isinstance(world, dict) else lambda k, d: getattr(world, k, d)
         defaults = cls()
         kw = {f.name: get(f.name, getattr(defaults, f.name)) for f in fields(cls) if f.name != "phi_tolerance"}
         return cls(**kw, phi_tolerance=phi_tolerance)
@@ -79,17 +86,17 @@ class Beliefs:
 
     def __init__(
         self,
-        explored,
-        phi_hat,
-        obstacles,
-        targets,
-        positions,
-        hovering,
-        me,
-        episodes,
+        explored: npt.ArrayLike,
+        phi_hat: MapSource,
+        obstacles: MapSource,
+        targets: MapSource,
+        positions: npt.ArrayLike,
+        hovering: npt.ArrayLike,
+        me: npt.ArrayLike,
+        episodes: npt.ArrayLike,
         step: int = 0,
         settings: ObservationSettings | None = None,
-        value=None,
+        value: MapSource = None,
     ):
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
@@ -153,23 +160,28 @@ class Beliefs:
     # --- sizes --------------------------------------------------------------------------------------
     @property
     def batch(self) -> int:
-        return self.explored.shape[0]
+        result: int = self.explored.shape[0]
+        return result
 
     @property
     def deciders(self) -> int:
-        return self.explored.shape[1]
+        result: int = self.explored.shape[1]
+        return result
 
     @property
     def vehicles(self) -> int:
-        return self.positions.shape[2]
+        result: int = self.positions.shape[2]
+        return result
 
     @property
     def width(self) -> int:
-        return self.explored.shape[2]
+        result: int = self.explored.shape[2]
+        return result
 
     @property
     def height(self) -> int:
-        return self.explored.shape[3]
+        result: int = self.explored.shape[3]
+        return result
 
     # --- derived views (computed once per Beliefs) ---------------------------------------------------
     @cached_property
@@ -181,16 +193,18 @@ class Beliefs:
     def pos(self) -> np.ndarray:
         """(B, U, 2) each decider's own cell."""
         bi, ui = self._rows
-        return self.positions[bi, ui, self.me]
+        result: np.ndarray = self.positions[bi, ui, self.me]
+        return result
 
     @cached_property
     def others(self) -> np.ndarray:
         """(B, U, N) bool: vehicle n is another vehicle whose position the decider knows."""
         n = np.arange(self.vehicles)
-        return (self.positions[..., 0] >= 0) & (n[None, None, :] != self.me[..., None])
+        result: np.ndarray = (self.positions[..., 0] >= 0) & (n[None, None, :] != self.me[..., None])
+        return result
 
     @cached_property
-    def crews(self) -> list[tuple[tuple[int, int], bool, list[tuple[int, int, bool]]]] | None:
+    def crews(self) -> list[Crew] | None:
         """For a few deciders (B x U x N <= SMALL), flat over (B, U): each decider's own cell, whether
         it hovers, and the (x, y, hovering) of each other vehicle whose position it knows (`others`),
         as Python ints; None for more. At batch 1 a numpy call costs more than the arithmetic, so the
@@ -198,7 +212,7 @@ class Beliefs:
         b, u, n, _ = self.positions.shape
         if b * u * n > SMALL:
             return None
-        crews = []
+        crews: list[Crew] = []
         for row, hover, me in zip(
             self.positions.reshape(b * u, n, 2).tolist(),
             self.hovering.reshape(b * u, n).tolist(),
@@ -212,7 +226,8 @@ class Beliefs:
     def hovering_self(self) -> np.ndarray:
         """(B, U) bool: the decider hovers on a target (it stays there)."""
         bi, ui = self._rows
-        return self.hovering[bi, ui, self.me]
+        result: np.ndarray = self.hovering[bi, ui, self.me]
+        return result
 
     def _cell_counts(self, which: np.ndarray) -> np.ndarray:
         """(B, U, W, H) int: how many of the vehicles selected by `which` (B, U, N) are on each cell."""
@@ -243,7 +258,8 @@ class Beliefs:
     @cached_property
     def blocked(self) -> np.ndarray:
         """(B, U, W, H) bool: what the decider must not enter: known obstacles and held cells."""
-        return self.obstacles | self.held
+        result: np.ndarray = self.obstacles | self.held
+        return result
 
     @cached_property
     def taken(self) -> np.ndarray:
@@ -307,7 +323,8 @@ class Beliefs:
         others (every other vehicle known and hovering): the paper's straggler."""
         others = np.arange(self.vehicles)[None, None, :] != self.me[..., None]
         all_hover = ((self.others & self.hovering) | ~others).all(-1)
-        return ~self.hovering_self & all_hover & (self.vehicles > 1)
+        result: np.ndarray = ~self.hovering_self & all_hover & (self.vehicles > 1)
+        return result
 
     def shared(self) -> np.ndarray:
         """(B,) bool: every decider of the batch holds the same maps as planners read them (explored
@@ -328,11 +345,11 @@ class Beliefs:
             other._ready.pop("value", None)
         return other
 
-    def select(self, batches: np.ndarray) -> Beliefs:
+    def select(self, batches: npt.ArrayLike) -> Beliefs:
         """The beliefs of some batches only (`batches`: bool mask or indices over B)."""
         idx = np.flatnonzero(batches) if np.asarray(batches).dtype == bool else np.asarray(batches)
 
-        def part(name: str):
+        def part(name: str) -> Callable[[], np.ndarray] | None:
             return None if self._maps[name] is None else (lambda: self._map(name)[idx])
 
         return Beliefs(

@@ -45,7 +45,8 @@ def _per(distance_m: np.ndarray, pl0_db: float) -> np.ndarray:
     d = np.maximum(np.asarray(distance_m, dtype=np.float64), 1.0)
     mean_snr_db = P_TX_DBM - NOISE_DBM - pl0_db - 10.0 * PATH_LOSS_EXPONENT * np.log10(d)
     snr = 10.0 ** ((mean_snr_db[..., None] - _SHADOW_DB) / 10.0)
-    return (1.0 - np.exp(-_SNR_THRESHOLD / snr)) @ _SHADOW_W
+    result: np.ndarray = (1.0 - np.exp(-_SNR_THRESHOLD / snr)) @ _SHADOW_W
+    return result
 
 
 @lru_cache(maxsize=1)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from typing import Any, Literal, get_args
 
 from swarmctl.errors import ScenarioError
 from swarmctl.limits import MAX_CELL_M, MAX_GRID_SIDE
@@ -16,7 +17,8 @@ from swarmctl.world.beliefs import PAPER_VARIANT, VARIANT_CHANNELS
 
 SCENARIOS = ("sparse", "cluster")
 CHANNELS = ("ideal", "none", "model", "fixed")
-FINISHES = ("held", "found", "covered")  # when an episode succeeds (WorldConfig.finish; mission files' finish)
+Finish = Literal["held", "found", "covered"]  # when an episode succeeds (WorldConfig.finish; mission files' finish)
+FINISHES: tuple[str, ...] = get_args(Finish)
 MAX_WINDOW = 256  # the Q-network takes windows of 8..256
 MAX_UAVS = 1000
 MAX_FOV = 100.0  # cells
@@ -177,5 +179,5 @@ class WorldConfig:
                 f"of a {m} x {m} map with {self.targets} targets and eta {self.obstacles}"
             )
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -16,6 +16,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
+import numpy.typing as npt
 
 # the world's streams (the policies' are 1..6)
 LOSSES = 0x100  # one per message: lost or delivered (swarmctl.world.channel)
@@ -34,10 +35,10 @@ def _mix(z: np.ndarray) -> np.ndarray:
     return z
 
 
-def _key(*parts) -> np.ndarray:
+def _key(*parts: npt.ArrayLike) -> np.ndarray:
     """Fold integer arrays (broadcast together) into one 64-bit key per element."""
     with np.errstate(over="ignore"):
-        h = np.uint64(0x5EED)
+        h: np.ndarray = np.asarray(np.uint64(0x5EED))
         for p in parts:
             h = _mix(np.asarray(h, dtype=np.uint64) + _GOLDEN + np.asarray(p).astype(np.int64).astype(np.uint64))
         return h
@@ -92,14 +93,16 @@ def _seed_key(seed: int) -> int:
     return _mix_int(0x5EED + _G + (seed & _MASK))
 
 
-def _uniform_small(seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape) -> np.ndarray:
+def _uniform_small(
+    seed: int, episodes: np.ndarray, step: int, vehicles: np.ndarray, stream: int, shape: tuple[int, ...]
+) -> np.ndarray:
     """uniform() for a few draws, on Python ints: the same bits (the key's part up to the step is
     folded once per episode)."""
     kshape = vehicles.shape if episodes.size == 1 else np.broadcast_shapes(episodes.shape, vehicles.shape)
     n, size = math.prod(kshape), math.prod(shape)
     head, at_step, tail = _seed_key(seed), _G + (step & _MASK), _G + (stream & _MASK)
     upto_step: dict[int, int] = {}
-    bits = []
+    bits: list[int] = []
     for e, v in zip(_column(episodes, kshape, n), _column(vehicles, kshape, n)):
         k = upto_step.get(e)
         if k is None:
@@ -122,7 +125,7 @@ def _one_each_small(seed: int, episodes: np.ndarray, step: int, me: np.ndarray, 
     """uniform(seed, episodes, step, me, stream) for me (B, U) with a few elements: the same bits (a
     53-bit integer times 2^-53 is exact in a Python float as in numpy)."""
     at_step, tail = _G + (step & _MASK), _G + (stream & _MASK)
-    out = []
+    out: list[float] = []
     for e, row in zip(episodes.tolist(), me.tolist()):
         k = _mix_int(_episode_key(seed, e) + at_step)
         out.extend((_mix_int(_mix_int(_mix_int(k + _G + (v & _MASK)) + tail)) >> 11) * _UNIT for v in row)

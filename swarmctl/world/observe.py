@@ -11,12 +11,13 @@ policies build Beliefs first (swarmctl.world.beliefs), so both see the same tens
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from functools import lru_cache
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from swarmctl.world.beliefs import PAPER_VARIANT, SMALL, Beliefs
+from swarmctl.world.beliefs import PAPER_VARIANT, SMALL, Beliefs, Crew
 from swarmctl.world.moves import block_starts
 
 FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
@@ -74,7 +75,7 @@ def _padded(value: np.ndarray, window: int, rho: float) -> np.ndarray:
     return padded
 
 
-def _build_few(value: np.ndarray, crews: list, window: int, rho: float) -> np.ndarray:
+def _build_few(value: np.ndarray, crews: Sequence[Crew], window: int, rho: float) -> np.ndarray:
     """build_observations for a few deciders: `crews` holds, flat over (B, U), each decider's own cell,
     a flag unused here, and the (x, y, flag) of the other vehicles it knows, as Python ints (the form of
     Beliefs.crews). Corners, the own cell and the

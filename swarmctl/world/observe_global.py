@@ -60,7 +60,8 @@ def pooled_around(maps: np.ndarray, pos: np.ndarray, side: int, fill: np.ndarray
     area = ((x1 - x0)[:, :, None] * (y1 - y0)[:, None, :]).astype(np.float64)
     area_in = ((cx1 - cx0)[:, :, None] * (cy1 - cy0)[:, None, :]).astype(np.float64)
     total = inside + (area - area_in)[..., None] * fill[None, None, None, :]
-    return (total / area[..., None]).astype(np.float32).transpose(0, 3, 1, 2)
+    result: np.ndarray = (total / area[..., None]).astype(np.float32).transpose(0, 3, 1, 2)
+    return result
 
 
 def observe_global_local(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:

@@ -51,7 +51,8 @@ def step_towards(dist_to_goal: np.ndarray, pos: np.ndarray, ties: np.ndarray) ->
     best = d.min(1, keepdims=True)
     choice = (d == best) & np.isfinite(d)
     choice[~np.isfinite(best[:, 0]), 0] = True  # no path: stay
-    return np.argmax(choice * (ties + 1.0), axis=1)
+    result: np.ndarray = np.argmax(choice * (ties + 1.0), axis=1)
+    return result
 
 
 def largest_free_region(blocked: np.ndarray) -> np.ndarray:
@@ -60,7 +61,8 @@ def largest_free_region(blocked: np.ndarray) -> np.ndarray:
     if n == 0:
         return np.zeros_like(blocked, dtype=bool)
     sizes = np.bincount(labels.ravel())[1:]
-    return labels == (1 + int(np.argmax(sizes)))
+    result: np.ndarray = labels == (1 + int(np.argmax(sizes)))
+    return result
 
 
 def reachable_from(passable: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -67,7 +67,7 @@ def place_targets(cfg: WorldConfig, rng: np.random.Generator, allowed: np.ndarra
         np.minimum(min_d2, ((cells - cells[index]) ** 2).sum(axis=1), out=min_d2)
 
     if cfg.scenario == "sparse":
-        add(int(rng.integers(n)) if allowed is None else _draw(rng, where))
+        add(int(rng.integers(n)) if isinstance(where, float) else _draw(rng, where))  # a float: allowed is None
         dist0 = np.sqrt(((cells - cells[chosen[0]]) ** 2).sum(axis=1))
         for _ in range(1, k):
             add(_draw(rng, np.where(min_d2 > cfg.d_sparse**2, dist0, 0.0) * where))
@@ -165,7 +165,7 @@ def generate_scenario(cfg: WorldConfig, seed: int, episode: int, blocked: np.nda
     region = largest_free_region(blocked) if blocked is not None else None
     for _ in range(MAX_ATTEMPTS):
         try:
-            if region is not None:
+            if region is not None and blocked is not None:  # (one is None only with the other)
                 targets = place_targets(cfg, rng, allowed=region)
                 starts = place_starts(cfg, ~region, targets, rng)
                 return Scenario(targets=targets, obstacles=blocked.copy(), starts=starts, obstacle_rects=[])
@@ -201,7 +201,7 @@ def value_map(targets: np.ndarray, width: int, height: int, sigma2: float = 1.0,
     tx = targets[..., 0].astype(np.float32)[..., None, None]
     ty = targets[..., 1].astype(np.float32)[..., None, None]
     d2 = (xs[:, None] - tx) ** 2 + (ys[None, :] - ty) ** 2  # (..., K, W, H)
-    phi = np.exp(-d2.min(axis=-3) / (2.0 * sigma2)).astype(np.float32)
+    phi: np.ndarray = np.exp(-d2.min(axis=-3) / (2.0 * sigma2)).astype(np.float32)
     phi[phi < cutoff] = 0.0
     return phi
 

@@ -36,7 +36,8 @@ def remove_taken_targets(
     if len(lead) and int(np.prod(lead)) > 1:  # many maps, often equal (agents sharing knowledge): each once
         flat = [a.reshape(-1, *a.shape[-2:]) for a in (phi_hat, explored, taken)]
         if all(_all_equal(a) for a in flat):  # all the same: one map, shared
-            done = _remove(*(a[:1] for a in flat), sigma2, cutoff, tolerance)
+            p, e, t = (a[:1] for a in flat)
+            done = _remove(p, e, t, sigma2, cutoff, tolerance)
             return np.broadcast_to(done, flat[0].shape).reshape(phi_hat.shape)
         first: dict[bytes, int] = {}
         which = np.array(
@@ -44,8 +45,10 @@ def remove_taken_targets(
         )
         if len(first) < which.size:
             keep = np.unique(which, return_index=True)[1]
-            done = _remove(*(a[keep] for a in flat), sigma2, cutoff, tolerance)
-            return done[which].reshape(phi_hat.shape)
+            p, e, t = (a[keep] for a in flat)
+            done = _remove(p, e, t, sigma2, cutoff, tolerance)
+            out: np.ndarray = done[which].reshape(phi_hat.shape)
+            return out
     return _remove(phi_hat, explored, taken, sigma2, cutoff, tolerance)
 
 
@@ -58,8 +61,8 @@ def _remove(
     phi_hat: np.ndarray, explored: np.ndarray, taken: np.ndarray, sigma2: float, cutoff: float, tolerance: float
 ) -> np.ndarray:
     if phi_hat.ndim > 2 and phi_hat.size == phi_hat.shape[-2] * phi_hat.shape[-1]:  # one map: transformed in 2-D
-        two = [a.reshape(a.shape[-2:]) for a in (phi_hat, explored, taken)]
-        return _remove(*two, sigma2, cutoff, tolerance).reshape(phi_hat.shape)
+        p, e, t = (a.reshape(a.shape[-2:]) for a in (phi_hat, explored, taken))
+        return _remove(p, e, t, sigma2, cutoff, tolerance).reshape(phi_hat.shape)
     sampling = [_FAR] * (phi_hat.ndim - 2) + [1.0, 1.0]
     remaining = explored & (phi_hat >= 1.0) & ~taken
     gone = value_bump(distance_transform_edt(~taken, sampling=sampling), sigma2, cutoff)

@@ -6,4 +6,7 @@ ardupilot.py (pymavlink) and px4.py (MAVSDK) are the drivers that fly them. This
 them, so reading a mission file loads neither pymavlink nor MAVSDK.
 """
 
-AUTOPILOT_NAMES = ("ardupilot", "px4")  # the values the mission file's `autopilot` key takes
+from typing import Literal, get_args
+
+AutopilotName = Literal["ardupilot", "px4"]  # the values the mission file's `autopilot` key takes
+AUTOPILOT_NAMES: tuple[str, ...] = get_args(AutopilotName)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import abc
 import importlib
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, ClassVar, TypeVar
 
 from swarmctl.errors import InputError
 from swarmctl.mavlink.limits import FlightLimits
@@ -44,6 +44,28 @@ class Autopilot(abc.ABC):
     limit_parameters: ClassVar[tuple[str, ...]] = ()
     # True: the driver opens the vehicle's connection itself (MAVSDK) and cannot share a pymavlink link
     own_connection: ClassVar[bool] = False
+    # the parameters that say what the vehicle does by itself, read at preflight (mission/failsafes.py):
+    # when the controller's heartbeats stop (the GCS failsafe), on a low battery, on a geofence breach
+    gcs_failsafe_parameter: ClassVar[str] = ""
+    battery_failsafe_parameter: ClassVar[str] = ""
+    fence_failsafe_parameter: ClassVar[str] = ""
+    gcs_failsafe_fix: ClassVar[str] = ""  # how to turn the GCS failsafe on: "set ... to ..."
+    # parameter -> {value: what the vehicle does}; a value missing from a table is reported by number
+    failsafe_actions: ClassVar[Mapping[str, Mapping[int, str]]] = {}
+
+    def failsafe_action(self, parameter: str, value: float) -> str:
+        """What the vehicle does when `parameter` (one of the failsafe parameters) has `value`."""
+        if not float(value).is_integer():  # NaN, infinite or a fraction: not one of its values
+            return f"unknown ({parameter} {value!r})"
+        unknown = f"{parameter} {int(value)} (unknown to swarmctl)"
+        return self.failsafe_actions.get(parameter, {}).get(int(value), unknown)
+
+    def failsafe_is_off(self, parameter: str, value: float) -> bool:
+        """True when `parameter` at `value` makes the vehicle do nothing (its failsafe is off): the
+        values its table says "nothing" for (0 for each of them; PX4's GF_ACTION 1 too), and a value that
+        is no whole number (nothing can be told from it)."""
+        action = self.failsafe_action(parameter, value)
+        return action.startswith("nothing") or action.startswith("unknown (")
 
     @property
     @abc.abstractmethod
@@ -98,7 +120,10 @@ class Autopilot(abc.ABC):
         return f"<autopilot {self.name} (MAV_AUTOPILOT {self.mav_autopilot})>"
 
 
-def register(description: Autopilot) -> Autopilot:
+_A = TypeVar("_A", bound="Autopilot")
+
+
+def register(description: _A) -> _A:
     """Make `description` the one for its MAV_AUTOPILOT id and its name; returns it."""
     _BY_ID[description.mav_autopilot] = description
     _BY_NAME[description.name] = description

@@ -85,6 +85,43 @@ class ArduPilotAutopilot(Autopilot):
     # SITL: it leaves the ground 4.5 s after NAV_TAKEOFF's ack, disarms 3.4-3.6 s after touching down, and
     # holds within 0.5 m of a target 0.2 s after coming within 1 m
     spool_s, disarm_s, settle_s = 5.0, 4.0, 0.5
+    # the failsafes (ArduCopter 4.7's parameter documentation); FS_GCS_ENABLE's default is 0: off
+    gcs_failsafe_parameter = "FS_GCS_ENABLE"
+    battery_failsafe_parameter = "BATT_FS_LOW_ACT"
+    fence_failsafe_parameter = "FENCE_ACTION"
+    gcs_failsafe_fix = "set FS_GCS_ENABLE to 1 (RTL) or 5 (land), with FS_GCS_TIMEOUT (seconds)"
+    failsafe_actions = MappingProxyType(
+        {
+            "FS_GCS_ENABLE": {
+                0: "nothing (GCS failsafe off)",
+                1: "RTL",
+                2: "RTL (2: continue an AUTO mission; removed in 4.0)",
+                3: "SmartRTL, else RTL",
+                4: "SmartRTL, else land",
+                5: "land",
+                6: "DO_LAND_START, else RTL",
+                7: "brake, else land",
+            },
+            "BATT_FS_LOW_ACT": {
+                0: "nothing (warning only)",
+                1: "land",
+                2: "RTL",
+                3: "SmartRTL, else RTL",
+                4: "SmartRTL, else land",
+                5: "terminate (motors off)",
+                6: "DO_LAND_START, else RTL",
+                7: "brake, else land",
+            },
+            "FENCE_ACTION": {
+                0: "nothing (report only)",
+                1: "RTL, else land",
+                2: "land",
+                3: "SmartRTL, else RTL, else land",
+                4: "brake, else land",
+                5: "SmartRTL, else land",
+            },
+        }
+    )
 
     @property
     def modes(self) -> Mapping[str, int]:
@@ -207,6 +244,37 @@ class PX4Autopilot(Autopilot):
     api_port_base, api_port_wrapped, api_instances = 14540, 14549, 10
     # the modes a pilot selects with the sticks, as MAVSDK names them
     pilot_modes = frozenset({"MANUAL", "ALTCTL", "POSCTL", "ACRO", "STABILIZED", "RATTITUDE"})
+    # the failsafes (PX4's parameter reference); NAV_DLL_ACT's default is 0: off
+    gcs_failsafe_parameter = "NAV_DLL_ACT"
+    battery_failsafe_parameter = "COM_LOW_BAT_ACT"
+    fence_failsafe_parameter = "GF_ACTION"
+    gcs_failsafe_fix = "set NAV_DLL_ACT to 2 (return) or 3 (land), with COM_DL_LOSS_T (seconds)"
+    failsafe_actions = MappingProxyType(
+        {
+            "NAV_DLL_ACT": {
+                0: "nothing (data-link loss failsafe off)",
+                1: "hold",
+                2: "return",
+                3: "land",
+                5: "terminate (motors off)",
+                6: "lockdown (motors off)",
+            },
+            "COM_LOW_BAT_ACT": {
+                0: "nothing (warning only)",
+                1: "return",
+                2: "land",
+                3: "return at critical level, land at emergency level",
+            },
+            "GF_ACTION": {
+                0: "nothing",
+                1: "nothing (warning only)",
+                2: "hold",
+                3: "return",
+                4: "terminate (motors off)",
+                5: "land",
+            },
+        }
+    )
 
     @property
     def modes(self) -> Mapping[str, int]:
