@@ -22,6 +22,7 @@ import pytest
 
 import swarmctl.mission.recorder as recorder_module
 from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
+from swarmctl.mavlink.errors import CommandTimeout
 from swarmctl.mavlink.network import MavlinkLink
 from swarmctl.mission.events import check_event
 from swarmctl.mission.recorder import BULKY, Recorder, reserve_for
@@ -224,6 +225,34 @@ def test_a_listener_that_raises_is_reported_once_and_its_vehicle_judged_silent(c
     assert len(errors) == 2 and all(r.exc_info is None for r in errors)  # one line each, no traceback
     text = " ".join(r.getMessage() for r in errors)
     assert "broken" in text and "vehicle 1 is treated as silent" in text and "broken_batch" in text
+
+
+def test_a_silenced_vehicle_is_still_sent_its_end_action():
+    # its link is up, so its own GCS failsafe will not act: the controller's end action still goes out
+    # (Controller._end_action), unconfirmed, since its answers are no longer followed
+    def broken(msg: Any) -> None:
+        raise ValueError("no room for it")
+
+    async def scenario() -> tuple[str | None, str]:
+        link = await MavlinkLink("udpin:127.0.0.1:0").open()
+        try:
+            with mock_vehicles(dict(sysid=1, connect=f"udpout:127.0.0.1:{link.local_port}")) as (mock,):
+                v = ArduPilotVehicle(link, 1)
+                await v.connect(5)
+                assert v.silenced is None
+                link.add_listener(broken, ("HEARTBEAT",))
+                await until(lambda: v.lost, 5)
+                with pytest.raises(CommandTimeout):  # no acknowledgement is heard
+                    await v.rtl()
+                await until(lambda: mock.mode_name == "RTL", 5)
+                why, mode = v.silenced, mock.mode_name
+                await v.close()
+                return why, mode
+        finally:
+            await link.close()
+
+    why, mode = run(scenario())
+    assert why is not None and "broken" in why and mode == "RTL"
 
 
 # --- the demo on a 400 KB disk --------------------------------------------------------------------------

@@ -399,6 +399,12 @@ class Vehicle(abc.ABC):
     def mode(self) -> str: ...
 
     @property
+    def silenced(self) -> str | None:
+        """Why the vehicle's messages are no longer followed while its link is up (a listener failed on
+        one: MavlinkLink._listener_failed), or None. Its GCS failsafe does not act then: the link is up."""
+        return None
+
+    @property
     @abc.abstractmethod
     def lost(self) -> bool:
         """True while the vehicle's heartbeats have stopped (link loss)."""

@@ -293,10 +293,13 @@ class Controller:
         if a.state in (State.FAILED, State.CONNECT, State.PREFLIGHT) and not a.vehicle.armed:
             a.end_state = a.state
             return
-        if a.state is State.LOST or a.vehicle.lost:
+        silenced = a.vehicle.silenced
+        if (a.state is State.LOST or a.vehicle.lost) and silenced is None:
             a.end_state = "lost (left to its failsafe)"
             self.rec.event("end_action", vehicle=a.name, action="none: link lost")
             return
+        # a vehicle judged silent because a listener failed on its messages still hears us (its link is
+        # up, so its GCS failsafe will not act): it is sent its end action all the same, unconfirmed
         if a.state is State.OVERRIDE:
             who = "pilot" if a.override_reason == "pilot" else f"taken over, {a.override_reason}"
             a.end_state = f"{who} ({a.vehicle.mode})"

@@ -617,6 +617,10 @@ class ArduPilotVehicle(Vehicle):
         return self.link.is_lost(self.sysid)
 
     @property
+    def silenced(self) -> str | None:
+        return self.link.silenced.get(self.sysid)
+
+    @property
     def battery_remaining(self) -> int | None:
         st = self._msg("SYS_STATUS")
         return None if st is None or st.battery_remaining < 0 else int(st.battery_remaining)
