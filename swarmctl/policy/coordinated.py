@@ -105,7 +105,7 @@ class CoordinatedPolicy:
         targets = beliefs.targets[hb, hu]
         obstacles = beliefs.obstacles[hb, hu]
         explored = beliefs.explored[hb, hu]
-        park = self._parking(targets, n, beliefs.step)
+        park = self._parking(targets, n)
         parked = on_target & park[:, None]
         searching = known & ~parked
         parked_cells = np.zeros((m, w, h), dtype=bool)
@@ -129,7 +129,7 @@ class CoordinatedPolicy:
         moves = self._navigate(beliefs, hb, positions, known, passable, dist, goals, has_goal & searching)
         return np.where(parked, STAY, moves)
 
-    def _parking(self, targets: np.ndarray, vehicles: int, step: int) -> np.ndarray:
+    def _parking(self, targets: np.ndarray, vehicles: int) -> np.ndarray:
         """(M,) whether the holders' swarm parks on targets now (the hover rule; the step limit is
         applied with the assignment)."""
         if self.hover == FIRST:
