@@ -115,5 +115,5 @@ def test_a_vehicle_low_on_battery_is_sent_home_and_the_return_is_seen_through(tm
     assert a.state is State.ENDED and a.end_action == "rtl" and a.end_state == "landed at home" and landed_home
     events = [json.loads(line) for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert any(e["event"] == "state" and e["vehicle"] == "uav2" and e["state"] == "low battery" for e in events)
-    assert not controller.tasks  # the RTL command the controller started is done, not left behind
+    assert not controller.state.tasks  # the RTL command the controller started is done, not left behind
     assert outcome in ("partial", "time limit")

@@ -1,4 +1,4 @@
-"""One waiter for a round's flights (swarmctl.mission.flight.fly_all): each vehicle's outcome and its
+"""One waiter for a round's flights (swarmctl.mission.flight.Flight.fly_all): each vehicle's outcome and its
 own timeout, the driver's resends while waiting, a driver that must wait for its goto, stop and link loss."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from types import SimpleNamespace
 import pytest
 
 from swarmctl.mavlink.errors import MavlinkError
-from swarmctl.mission.flight import fly_all
+from swarmctl.mission.flight import Flight
 from tests.mavlink_support import run
 from tests.mission_support import small_grid
 
@@ -47,13 +47,20 @@ class FakeVehicle:
         self.kept += 1
 
 
-def controller():
-    flight = SimpleNamespace(reach_tolerance=1.0)
-    return SimpleNamespace(
-        grid=small_grid(),
-        guard=SimpleNamespace(setpoint_altitude=lambda: 40.0),
-        plan=SimpleNamespace(spec=SimpleNamespace(flight=flight)),
-        stopping=False,
+def controller() -> Flight:
+    """The flight part alone: a grid, the guard's altitude, the reach tolerance and the stop flag; no
+    crew, recorder or finish line (fly_all needs none of them), and a watch that sees nobody off course."""
+    return Flight(
+        small_grid(),
+        SimpleNamespace(setpoint_altitude=lambda: 40.0),
+        fov=1.0,
+        limits=SimpleNamespace(reach_tolerance=1.0),
+        timing=SimpleNamespace(sense_timeout=1.0),
+        rec=None,
+        state=SimpleNamespace(stopping=False, step=0),
+        crew=None,
+        watch=SimpleNamespace(off_course=lambda a, cell: False),
+        finish=None,
     )
 
 
@@ -68,7 +75,7 @@ def test_each_flight_ends_on_its_own_arrival_or_timeout():
 
     async def scenario():
         started = time.monotonic()
-        out = await fly_all(c, moves, 0.6)
+        out = await c.fly_all(moves, 0.6)
         return out, time.monotonic() - started
 
     (reached, took) = run(scenario())
@@ -87,11 +94,11 @@ def test_stop_and_link_loss_end_the_wait_at_once_and_count_as_no_timeout():
             await asyncio.sleep(0.1)
             lost.lost = True
             await asyncio.sleep(0.1)
-            c.stopping = True
+            c.state.stopping = True
 
         started = time.monotonic()
         helper = asyncio.ensure_future(trouble())
-        out = await fly_all(c, [(agent("lost", lost), (1, 1)), (agent("stopped", stopped), (2, 2))], 30.0)
+        out = await c.fly_all([(agent("lost", lost), (1, 1)), (agent("stopped", stopped), (2, 2))], 30.0)
         await helper
         return out, time.monotonic() - started
 
@@ -105,7 +112,7 @@ def test_a_blocked_cell_is_refused_before_any_target_goes_out():
     blocked = tuple(int(v) for v in next(zip(*c.grid.blocked.nonzero())))
 
     with pytest.raises(MavlinkError, match="blocked cell"):
-        run(fly_all(c, [(agent("ok", ok), (0, 0)), (agent("bad", FakeVehicle(0.0)), blocked)], 1.0))
+        run(c.fly_all([(agent("ok", ok), (0, 0)), (agent("bad", FakeVehicle(0.0)), blocked)], 1.0))
     assert ok.target is None
 
 
@@ -127,7 +134,7 @@ def test_an_arrival_is_seen_at_its_position_report_not_at_the_next_poll(monkeypa
     async def scenario():
         reports = asyncio.gather(report(first), report(second))
         moves = [(agent("a", first), (1, 0)), (agent("b", second), (0, 1))]
-        out = await asyncio.wait_for(fly_all(c, moves, 7200.0), 60)
+        out = await asyncio.wait_for(c.fly_all(moves, 7200.0), 60)
         await reports
         return out
 

@@ -55,13 +55,13 @@ def test_a_nan_parameter_in_a_vehicles_name_fails_that_vehicle_and_the_other_sti
 
 
 def test_a_bug_in_the_rounds_still_gives_every_vehicle_in_the_air_its_end_action(tmp_path, monkeypatch):
-    import swarmctl.mission.controller as controller_module
+    from swarmctl.mission.rounds import Rounds
 
-    async def broken_search(c):
-        await wait_for(lambda: all(a.state is State.SEARCH for a in c.agents), TIMEOUT, "both searching")
+    async def broken_search(rounds):
+        await wait_for(lambda: all(a.state is State.SEARCH for a in rounds.crew.agents), TIMEOUT, "both searching")
         raise RuntimeError("a bug in the rounds")
 
-    monkeypatch.setattr(controller_module, "search", broken_search)
+    monkeypatch.setattr(Rounds, "search", broken_search)
     with SimSwarm(small_grid(), uavs=2, seed=2, speedup=30.0) as swarm:
         plan = swarm.plan("frontier", end_action="rtl", time_limit=30.0)
         with pytest.raises(RuntimeError, match="a bug in the rounds"):

@@ -14,12 +14,14 @@ from pymavlink import mavutil
 from swarmctl.cli import main
 from swarmctl.errors import EXIT_OK, InputError
 from swarmctl.knowledge.model import Knowledge
+from swarmctl.mission.crew import Crew
 from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.events import check_event
 from swarmctl.mission.finish import STATUSTEXT_CHARS, FinishLine, find_text
 from swarmctl.mission.plan import make_plan
 from swarmctl.mission.service import run_controller
 from swarmctl.mission.spec import MissionSpec, VehicleSpec, load_spec
+from swarmctl.mission.state import MissionState
 from swarmctl.replay.recording import load as load_replay
 from swarmctl.replay.tracks import write_tracks
 from swarmctl.sim.swarm import SimSwarm
@@ -39,7 +41,8 @@ def test_a_mission_file_without_the_keys_finishes_as_before(tmp_path):
     spec = load_spec(small_mission(tmp_path))
     m = spec.mission
     assert (m.finish, m.expected_targets, m.on_find) == ("held", None, "hold")
-    line = FinishLine(make_plan(spec))
+    plan = make_plan(spec)
+    line = FinishLine(plan, Crew(len(spec.vehicles), None, rec=None), MissionState(), rec=None)
     assert line.classic and not line.marks and line.expected == 1  # the vehicle count
 
 

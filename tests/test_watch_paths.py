@@ -14,7 +14,6 @@ from swarmctl.mission.watch import deviation, off_path_m
 from tests.mission_support import small_grid
 
 GRID = small_grid()
-C = SimpleNamespace(grid=GRID, guard=SimpleNamespace(setpoint_altitude=lambda: 40.0))
 
 
 def fresh(start, cell, watch_pos, pos) -> tuple[float, float] | None:
@@ -53,9 +52,9 @@ def test_the_kept_path_gives_the_figures_of_a_fresh_measurement(sequence):
         agent.watch_pos = None if watch_m is None else (lat0 + watch_m[0] * 1e-5, lon0 + watch_m[1] * 1e-5)
         if not (again and vehicle.position is not None):
             vehicle.position = Position(lat0 + n * 1e-5, lon0 + e * 1e-5, alt, alt + 180.0)
-        assert deviation(C, agent, start, cell) == fresh(start, cell, agent.watch_pos, vehicle.position)
+        assert deviation(GRID, 40.0, agent, start, cell) == fresh(start, cell, agent.watch_pos, vehicle.position)
 
 
 def test_no_position_no_figures():
     agent = SimpleNamespace(vehicle=SimpleNamespace(position=None), watch_pos=None, watch_path=None)
-    assert deviation(C, agent, (0, 0), (1, 0)) is None
+    assert deviation(GRID, 40.0, agent, (0, 0), (1, 0)) is None

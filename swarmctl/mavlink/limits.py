@@ -21,7 +21,7 @@ SLACK_S = 5.0  # ... plus this many seconds
 # opposite sides. Counting the distance flown, a stretch counts once either end is AIRBORNE_M high or
 # higher: low, so that the whole climb and descent count and only the noise of a vehicle standing on
 # the ground does not (a stretch counted in error adds that noise, centimetres). Taking a vehicle back
-# after a link loss (mission.launch.rejoin), an armed vehicle higher than RESUME_ABOVE_M is resumed in
+# after a link loss (mission.launch.Launch.rejoin), an armed vehicle higher than RESUME_ABOVE_M is resumed in
 # the air, else it takes off again: higher, so that a landed vehicle whose altitude reads somewhat high
 # (barometer drift) still gets the take-off a resume would never give it.
 AIRBORNE_M = 0.5  # the odometer (Vehicle.distance_flown_m) and the replay's distance flown

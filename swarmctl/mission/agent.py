@@ -98,7 +98,7 @@ class Agent:
         self.end_action: str | None = None
         self.end_state: str | None = None
         self.error: str | None = None
-        self.status: str | None = None  # the latest preflight note (launch.note): what the vehicle says
+        self.status: str | None = None  # the latest preflight note (Launch.note): what the vehicle says
         self.notes: dict[str, float] = {}  # preflight note -> when it was last shown (time.monotonic())
         self.failsafes: dict | None = None  # kind -> failsafes.Failsafe, once read at preflight (failsafes.py)
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)

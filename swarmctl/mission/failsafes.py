@@ -23,9 +23,12 @@ from swarmctl.errors import InputError
 from swarmctl.mavlink.errors import MavlinkError
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from swarmctl.mission.agent import Agent
-    from swarmctl.mission.controller import Controller
+    from swarmctl.mission.crew import Crew
     from swarmctl.mission.plan import MissionPlan
+    from swarmctl.mission.state import MissionState
 
 log = logging.getLogger(__name__)
 
@@ -90,33 +93,31 @@ def refusal(name: str, info: Any, link: Failsafe) -> str:
     )
 
 
-async def check(c: Controller, a: Agent) -> None:
-    """Read the agent's vehicle's failsafes, show and record them (a preflight note), and refuse it
-    (InputError, one line) when its GCS failsafe is off and the mission does not allow that."""
-    from swarmctl.mission.launch import note
-
-    m = c.plan.spec.mission
-    found = await read(a.vehicle, c.fence is not None)
+async def check(a: Agent, fence: bool, allow_no_failsafe: bool, note: Callable[[str], None]) -> None:
+    """Read the agent's vehicle's failsafes (with its fence's when the mission uploads one), show and
+    record them (`note`: a preflight note), and refuse it (InputError, one line) when its GCS failsafe
+    is off and the mission does not allow that."""
+    found = await read(a.vehicle, fence)
     a.failsafes = found
-    note(c, a, summary(found))
+    note(summary(found))
     link = found.get("link")
     if link is None or not link.off:
         return
     line = refusal(a.name, a.vehicle.autopilot_info, link)
-    if not m.allow_no_failsafe:
+    if not allow_no_failsafe:
         raise InputError(line)
     warning = f"warning: {a.name} flies without a GCS failsafe ({link.text()}; allow_no_failsafe = true)"
     log.warning("%s", warning)
-    note(c, a, warning)
+    note(warning)
 
 
-async def all_checked(c: Controller) -> None:
+async def all_checked(crew: Crew, state: MissionState) -> None:
     """Wait until every agent's failsafes have been checked, or it has stopped trying (failed, ended),
     or the mission is stopping: no vehicle takes off before a refusal could stop the mission."""
     from swarmctl.mission.agent import State
 
     waiting = (State.NEW, State.CONNECT, State.PREFLIGHT)
-    while not c.stopping and any(ag.failsafes is None and ag.state in waiting for ag in c.agents):
+    while not state.stopping and any(ag.failsafes is None and ag.state in waiting for ag in crew.agents):
         await asyncio.sleep(GATE_POLL_S)
 
 

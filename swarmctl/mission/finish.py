@@ -3,7 +3,7 @@ expected_targets and on_find say (docs/mission.md, "The finish line"), and the f
 
 - `held` (the default): complete when N distinct targets are held (hovered on) by live vehicles; N
   left out is the vehicle count, the paper's criterion, decided exactly as before this module
-  (swarmctl.mission.rounds.ended: "complete", or "partial" when vehicles dropped out).
+  (swarmctl.mission.rounds.Rounds.ended: "complete", or "partial" when vehicles dropped out).
 - `found`: complete when N targets are found: known to the swarm, in the union of the agents'
   knowledge of target cells. N left out (unknown): complete when the area is covered.
 - `covered`: complete when every reachable cell is explored in the union of the agents' knowledge.
@@ -13,7 +13,7 @@ expected_targets and on_find say (docs/mission.md, "The finish line"), and the f
 
 A find is the first time a target cell enters the swarm's knowledge: a `find` event (the vehicle, the
 cell, its lat/lon, the seconds since the search started and the step), and the summary's `finds`. With
-`on_find = "mark"` the finding vehicle does not hover on it (rounds.update_states), the policy treats
+`on_find = "mark"` the finding vehicle does not hover on it (Rounds.update_states), the policy treats
 known targets as done (swarmctl.mission.decide), and the find is reported to the ground station as a
 STATUSTEXT (MAV_SEVERITY_NOTICE) from the vehicle's system id and the agent's component (191, as its
 knowledge frames): written on the vehicle's own link (a ground station behind its routing sees it, the
@@ -23,7 +23,6 @@ tlog keeps it) and to the mission's `gcs` when it has one.
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -33,13 +32,15 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.knowledge.model import stacked_field
 from swarmctl.knowledge.stack import NEVER
 from swarmctl.mission.agent import State
-from swarmctl.mission.rounds import others_hovering
 
 if TYPE_CHECKING:
+    from swarmctl.mavlink.gcs import GcsForwarder
     from swarmctl.mission.agent import Agent
-    from swarmctl.mission.controller import Controller
+    from swarmctl.mission.crew import Crew
     from swarmctl.mission.plan import MissionPlan
+    from swarmctl.mission.recorder import Recorder
     from swarmctl.mission.spec import MissionSpec
+    from swarmctl.mission.state import MissionState
 
 log = logging.getLogger(__name__)
 
@@ -102,9 +103,17 @@ def describe(spec: MissionSpec) -> str:
 
 
 class FinishLine:
-    """The mission's finish rule, the finds and the coverage, kept by the controller (`Controller.finish`)."""
+    """The mission's finish rule, the finds and the coverage of the crew's knowledge; finds are recorded
+    (`rec`) and, with on_find = "mark", announced on the finding vehicle's link and to the `gcs`."""
 
-    def __init__(self, plan: MissionPlan):
+    def __init__(
+        self,
+        plan: MissionPlan,
+        crew: Crew,
+        state: MissionState,
+        rec: Recorder,
+        gcs: GcsForwarder | None = None,
+    ):
         m = plan.spec.mission
         self.rule: str = m.finish
         self.on_find: str = m.on_find
@@ -118,6 +127,7 @@ class FinishLine:
         self._seeds: set[tuple[int, int]] = set()
         self.finds: dict[tuple[int, int], Find] = {}
         self.met: bool | None = None  # whether the finish line was met when the search ended (None: running)
+        self.crew, self.state, self.rec, self.gcs = crew, state, rec, gcs
 
     # --- what the rule needs ----------------------------------------------------------------------------
     @property
@@ -135,17 +145,19 @@ class FinishLine:
 
     @property
     def classic(self) -> bool:
-        """The default (held, N left out): the paper's rule, decided in rounds.ended as it always was."""
+        """The default (held, N left out): the paper's rule, decided in Rounds.ended as it always was."""
         return self.rule == "held" and self.given is None
 
     # --- the swarm's knowledge --------------------------------------------------------------------------
-    def hold_cells(self, c: Controller) -> None:
+    def hold_cells(self) -> None:
         """Note the cells the vehicles hold now (this process's, and other processes' as known): the
         reachable region grows by the free region of any cell not in it yet."""
-        cells = {a.cell for a in c.agents if a.cell is not None}
-        if c.plan.onboard:
-            for a in c.agents:
-                cells.update(p.cell for v, p in a.knowledge.peers.items() if not c.ours(v) and p.cell is not None)
+        cells = {a.cell for a in self.crew.agents if a.cell is not None}
+        if self.crew.onboard:
+            for a in self.crew.agents:
+                cells.update(
+                    p.cell for v, p in a.knowledge.peers.items() if not self.crew.ours(v) and p.cell is not None
+                )
         new = [x for x in cells - self._seeds if self.grid.in_grid(*x)]
         if not new:
             return
@@ -154,31 +166,33 @@ class FinishLine:
         if regions:
             self.reachable |= np.isin(self._regions, sorted(regions))
 
-    def explored(self, c: Controller) -> np.ndarray:
+    def explored(self) -> np.ndarray:
         """(W, H) bool: the cells explored in the union of the agents' knowledge."""
-        if not c.agents:
+        if not self.crew.agents:
             return np.zeros(self._regions.shape, dtype=bool)
-        return np.logical_or.reduce(stacked_field([a.knowledge for a in c.agents], "explored"), axis=0)
+        return np.logical_or.reduce(stacked_field([a.knowledge for a in self.crew.agents], "explored"), axis=0)
 
-    def known_targets(self, c: Controller) -> list[tuple[int, int]]:
+    def known_targets(self) -> list[tuple[int, int]]:
         """The target cells in the union of the agents' knowledge (sorted)."""
-        if not c.agents:
+        if not self.crew.agents:
             return []
-        known = np.logical_and.reduce(stacked_field([a.knowledge for a in c.agents], "target_step") == NEVER, axis=0)
+        known = np.logical_and.reduce(
+            stacked_field([a.knowledge for a in self.crew.agents], "target_step") == NEVER, axis=0
+        )
         return [(int(x), int(y)) for x, y in np.argwhere(~known)]
 
-    def coverage(self, c: Controller) -> tuple[int, int]:
+    def coverage(self) -> tuple[int, int]:
         """(reachable cells explored, reachable cells)."""
-        self.hold_cells(c)
+        self.hold_cells()
         total = int(np.count_nonzero(self.reachable))
-        return int(np.count_nonzero(self.explored(c) & self.reachable)), total
+        return int(np.count_nonzero(self.explored() & self.reachable)), total
 
-    def covered_fraction(self, c: Controller) -> float:
-        done, total = self.coverage(c)
+    def covered_fraction(self) -> float:
+        done, total = self.coverage()
         return round(done / total, 4) if total else 0.0
 
     # --- finds ------------------------------------------------------------------------------------------
-    def found(self, c: Controller, a: Agent | None, cells: list[tuple[int, int]]) -> None:
+    def found(self, a: Agent | None, cells: list[tuple[int, int]]) -> None:
         """Target cells the agent's detector reported (those it did not know yet), or (a None) that the
         swarm learnt from another process: the ones new to the swarm become finds, recorded and, with
         on_find = "mark" and a finding vehicle of this process, reported to the ground station."""
@@ -187,88 +201,72 @@ class FinishLine:
             if cell in self.finds:
                 continue
             lat, lon = self.grid.cell_to_latlon(*cell)
-            since = 0.0 if c.search_started is None else time.monotonic() - c.search_started
-            find = Find(cell, lat, lon, c.step, since, a.name if a is not None else None)
+            since = self.state.search_seconds()
+            find = Find(cell, lat, lon, self.state.step, since, a.name if a is not None else None)
             self.finds[cell] = find
-            c.rec.event("find", **find.record())
+            self.rec.event("find", **find.record())
             if a is not None and self.marks:
-                announce(c, a, find_text(lat, lon, a.name))
+                announce(a, find_text(lat, lon, a.name), self.gcs)
 
-    def sweep(self, c: Controller) -> None:
+    def sweep(self) -> None:
         """Targets the agents know that are no find yet (learnt over the knowledge channel from another
         process's vehicle, whose own process reports it): recorded as finds without a vehicle."""
-        missing = [t for t in self.known_targets(c) if t not in self.finds]
+        missing = [t for t in self.known_targets() if t not in self.finds]
         if missing:
-            self.found(c, None, missing)
+            self.found(None, missing)
 
     # --- the rule ---------------------------------------------------------------------------------------
-    def check(self, c: Controller) -> str | None:
+    def check(self) -> str | None:
         """The outcome when the rule (other than the classic one) ends the search now: "complete" when
         its line is met, "partial" when the search cannot go on (no live vehicle searches: they all hold
         targets; or, for found with N, the area covered with fewer found); None: carry on."""
-        if c.plan.onboard:
-            self.sweep(c)
-        if self.is_met(c):
+        if self.crew.onboard:
+            self.sweep()
+        if self.is_met():
             return "complete"
-        live = [a for a in c.agents if a.live]
-        if live and all(a.state is State.HOVER for a in live) and others_hovering(c):
+        live = [a for a in self.crew.agents if a.live]
+        if live and all(a.state is State.HOVER for a in live) and self.crew.others_hovering():
             return "partial"  # everyone parked on a target: nobody left to search
         if self.rule == "found" and self.expected is not None:
-            done, total = self.coverage(c)
+            done, total = self.coverage()
             if total and done == total:
                 return "partial"  # nothing left to find, fewer than expected found
         return None
 
-    def is_met(self, c: Controller) -> bool:
+    def is_met(self) -> bool:
         """Whether the finish line holds now (held with N given, found, covered; the classic rule is
-        rounds.ended's)."""
+        Rounds.ended's)."""
         if self.rule == "held":
-            return len(held_targets(c)) >= (self.expected or 0)
+            return len(self.crew.held_targets()) >= (self.expected or 0)
         if self.rule == "found" and self.expected is not None:
-            return len(self.known_targets(c)) >= self.expected
-        done, total = self.coverage(c)
+            return len(self.known_targets()) >= self.expected
+        done, total = self.coverage()
         return total > 0 and done == total
 
-    def summary(self, c: Controller, outcome: str | None, targets_found: list[dict]) -> dict:
+    def summary(self, outcome: str | None, targets_found: list[dict]) -> dict:
         """What summary.json adds: the rule and whether it was met, the finds in order, the coverage;
         each entry of `targets_found` gains the time and the vehicle of its find."""
-        if c.plan.onboard or len(self.finds) < len(self.known_targets(c)):
-            self.sweep(c)
+        if self.crew.onboard or len(self.finds) < len(self.known_targets()):
+            self.sweep()
         for t in targets_found:
             f = self.finds.get(tuple(t["cell"]))
             t["time_s"] = None if f is None else round(f.time_s, 2)
             t["vehicle"] = None if f is None else f.vehicle
         met = self.met
         if met is None:  # still running: as it stands now
-            met = outcome == "complete" if self.classic else self.is_met(c)
+            met = outcome == "complete" if self.classic else self.is_met()
         return dict(
             finish=dict(rule=self.rule, expected_targets=self.expected, on_find=self.on_find, met=bool(met)),
             finds=[f.record() for f in sorted(self.finds.values(), key=lambda f: (f.time_s, f.step, f.cell))],
-            covered_fraction=self.covered_fraction(c),
+            covered_fraction=self.covered_fraction(),
         )
 
-    def close(self, c: Controller, outcome: str | None) -> None:
+    def close(self, outcome: str | None) -> None:
         """At the end of the search (before the end actions): whether the line was met then."""
-        self.met = outcome == "complete" if self.classic else self.is_met(c)
+        self.met = outcome == "complete" if self.classic else self.is_met()
 
 
-def held_targets(c: Controller) -> set[tuple[int, int]]:
-    """The distinct target cells live vehicles hover on: this process's, and (onboard) the others'
-    vehicles known from the knowledge channel to hover on a target."""
-    cells = {a.cell for a in c.agents if a.state is State.HOVER and a.cell is not None}
-    if c.plan.onboard:
-        for v in range(len(c.plan.spec.vehicles)):
-            if c.ours(v):
-                continue
-            known = [p for p in (a.knowledge.positions.get(v) for a in c.agents) if p is not None]
-            if known:
-                newest = max(known, key=lambda p: p.order())
-                if newest.on_target and newest.cell is not None:
-                    cells.add(newest.cell)
-    return cells
-
-
-def announce(c: Controller, a: Agent, text: str) -> bool:
+def announce(a: Agent, text: str, gcs: GcsForwarder | None) -> bool:
     """A STATUSTEXT (NOTICE) from the vehicle's agent: on its own link (ArduPilot; MAVSDK's link carries
     no STATUSTEXT from us) and to the mission's ground station; True when it went out somewhere."""
     try:
@@ -283,9 +281,9 @@ def announce(c: Controller, a: Agent, text: str) -> bool:
             sent = bool(write(frame))
         except Exception as exc:
             log.warning("%s: the STATUSTEXT of a find could not be sent on its link: %s", a.name, exc)
-    if c.gcs is not None:
+    if gcs is not None:
         try:
-            c.gcs.sock.sendto(frame, c.gcs.address)
+            gcs.sock.sendto(frame, gcs.address)
             sent = True
         except OSError as exc:
             log.warning("the STATUSTEXT of a find could not be sent to the ground station: %s", exc)

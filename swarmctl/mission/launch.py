@@ -25,206 +25,239 @@ from swarmctl.mavlink.errors import MavlinkError
 from swarmctl.mavlink.limits import RESUME_ABOVE_M
 from swarmctl.mission import failsafes, timeouts
 from swarmctl.mission.agent import Agent, State
-from swarmctl.mission.flight import fly, nearest_free, sense_and_share
 
 if TYPE_CHECKING:
-    from swarmctl.mission.controller import Controller
+    from collections.abc import Callable
+
+    from swarmctl.mavlink.connect import Connector
+    from swarmctl.mission.crew import Crew
+    from swarmctl.mission.flight import Flight
+    from swarmctl.mission.plan import MissionPlan
+    from swarmctl.mission.recorder import Recorder
+    from swarmctl.mission.state import MissionState
 
 log = logging.getLogger(__name__)
 
 NOTE_REPEAT_S = 10.0  # a preflight note repeated within this long is not shown again
 
 
-async def connect(c: Controller, a: Agent) -> None:
-    """Connect the agent's vehicle with the driver its autopilot reports (see mavlink/connect.py). A
-    vehicle that disagrees with the mission file (AutopilotMismatch, an InputError) stops the mission;
-    the others get their end action."""
-    spec = a.spec
-    try:
-        vehicle = await c.connector.connect(
-            spec.connection,
-            spec.sysid,
-            name=spec.name,
-            autopilot=spec.autopilot,
-            timeout=c.plan.spec.timing.connect_timeout,
-        )
-    except InputError as exc:
-        refuse(c, a, exc)
-        return
-    a.vehicle = vehicle
-    vehicle.add_listener(a.feed.listener(spec.sysid), ("TUNNEL",))  # the detector's reports, where they come
+class Launch:
+    """Gets the crew's vehicles into the search and back into it: the plan (its grid, altitude, timing,
+    battery and mission settings), the fence to upload (None: none), the connector that opens the
+    links, how the vehicles fly (Flight), and `show`, called when the live view has news."""
 
+    def __init__(
+        self,
+        plan: MissionPlan,
+        fence: list[tuple[float, float]] | None,
+        connector: Connector,
+        rec: Recorder,
+        state: MissionState,
+        crew: Crew,
+        flight: Flight,
+        show: Callable[[], None] | None = None,
+    ):
+        self.plan, self.fence, self.connector = plan, fence, connector
+        self.rec, self.state, self.crew, self.flight, self.show = rec, state, crew, flight, show
+        self.takeoff_slots = asyncio.Semaphore(plan.spec.flight.takeoff_at_once)
 
-def refuse(c: Controller, a: Agent, exc: InputError) -> None:
-    """The vehicle contradicts the mission file (its autopilot) or the mission's safety rules (its GCS
-    failsafe is off): it fails, and the mission stops with `exc` (one line, exit 2)."""
-    a.error = str(exc)
-    c.enter(a, State.FAILED, error=a.error)
-    if c.mission_error is None:
-        c.mission_error, c.outcome = exc, "failed"
-    c.stop()
-
-
-async def start(c: Controller, a: Agent) -> None:
-    """Connect, preflight, (fence,) take off and fly to the first cell; then the agent searches."""
-    timing = c.plan.spec.timing
-    try:
-        c.enter(a, State.CONNECT)
-        await c.until_stopped(connect(c, a))
-        if c.stopping:
-            return
-        c.enter(a, State.PREFLIGHT)
+    async def connect(self, a: Agent) -> None:
+        """Connect the agent's vehicle with the driver its autopilot reports (see mavlink/connect.py). A
+        vehicle that disagrees with the mission file (AutopilotMismatch, an InputError) stops the mission;
+        the others get their end action."""
+        spec = a.spec
         try:
-            await c.until_stopped(failsafes.check(c, a))
-        except InputError as exc:  # its GCS failsafe is off: the mission stops before anything takes off
-            refuse(c, a, exc)
+            vehicle = await self.connector.connect(
+                spec.connection,
+                spec.sysid,
+                name=spec.name,
+                autopilot=spec.autopilot,
+                timeout=self.plan.spec.timing.connect_timeout,
+            )
+        except InputError as exc:
+            self.refuse(a, exc)
             return
-        if c.stopping:
-            return
-        await c.until_stopped(preflight(c, a))
-        if c.stopping:
-            return
-        battery = a.battery()
-        needed = c.plan.spec.battery.takeoff_min
-        if battery is not None and battery < needed:
-            raise MavlinkError(f"{a.name}: battery {battery} % is below the {needed} % needed to start")
-        home = a.vehicle.home
-        if home is None:
-            raise MavlinkError(f"{a.name}: no home position")
-        first = c.grid.latlon_to_cell(home.lat, home.lon)
-        if not c.grid.in_grid(*first):
-            raise MavlinkError(f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the grid")
-        if c.fence is not None:
-            await upload_fence(c, a, home)
-        await c.until_stopped(failsafes.all_checked(c))  # a refusal stops the mission before any take-off
-        async with c.takeoff_slots:
-            if c.stopping:
-                return
-            c.enter(a, State.TAKEOFF)
-            altitude = c.plan.altitude
-            wait = timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
-            await c.until_stopped(a.vehicle.arm_and_takeoff(altitude, wait))
-            if c.stopping:
-                return
-            # the first cell: the home cell, or the nearest free one nobody holds yet
-            cell = nearest_free(c, first, exclude=a)
-            await fly(c, a, cell, timing.takeoff_timeout)
-        a.cell = cell
-        await sense_and_share(c, a, moved=True, since=0.0)
-        c.enter(a, State.SEARCH)
-    except (TimeoutError, MavlinkError) as exc:
+        a.vehicle = vehicle
+        vehicle.add_listener(a.feed.listener(spec.sysid), ("TUNNEL",))  # the detector's reports, where they come
+
+    def refuse(self, a: Agent, exc: InputError) -> None:
+        """The vehicle contradicts the mission file (its autopilot) or the mission's safety rules (its GCS
+        failsafe is off): it fails, and the mission stops with `exc` (one line, exit 2)."""
         a.error = str(exc)
-        c.enter(a, State.FAILED, error=str(exc))
-    except InputError:
-        raise  # bad input: the mission stops with it (run() raises it, one line, exit 2)
-    except Exception as exc:  # a driver's bug, or a reply it did not expect: this vehicle fails, not the mission
-        a.error = f"unexpected {type(exc).__name__} while starting: {exc}"
-        log.error("%s: %s", a.name, a.error)
-        log.debug("%s: the unexpected error", a.name, exc_info=True)
-        c.enter(a, State.FAILED, error=a.error)
+        self.crew.enter(a, State.FAILED, error=a.error)
+        self.state.fail(exc)
 
+    async def start(self, a: Agent) -> None:
+        """Connect, preflight, (fence,) take off and fly to the first cell; then the agent searches."""
+        timing = self.plan.spec.timing
+        try:
+            self.crew.enter(a, State.CONNECT)
+            await self.state.until_stopped(self.connect(a))
+            if self.state.stopping:
+                return
+            self.crew.enter(a, State.PREFLIGHT)
+            try:
+                await self.state.until_stopped(
+                    failsafes.check(
+                        a,
+                        self.fence is not None,
+                        self.plan.spec.mission.allow_no_failsafe,
+                        lambda text: self.note(a, text),
+                    )
+                )
+            except InputError as exc:  # its GCS failsafe is off: the mission stops before anything takes off
+                self.refuse(a, exc)
+                return
+            if self.state.stopping:
+                return
+            await self.state.until_stopped(self.preflight(a))
+            if self.state.stopping:
+                return
+            battery = a.battery()
+            needed = self.plan.spec.battery.takeoff_min
+            if battery is not None and battery < needed:
+                raise MavlinkError(f"{a.name}: battery {battery} % is below the {needed} % needed to start")
+            home = a.vehicle.home
+            if home is None:
+                raise MavlinkError(f"{a.name}: no home position")
+            first = self.plan.grid.latlon_to_cell(home.lat, home.lon)
+            if not self.plan.grid.in_grid(*first):
+                raise MavlinkError(f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the grid")
+            if self.fence is not None:
+                await self.upload_fence(a, home)
+            await self.state.until_stopped(
+                failsafes.all_checked(self.crew, self.state)
+            )  # a refusal stops the mission before any take-off
+            async with self.takeoff_slots:
+                if self.state.stopping:
+                    return
+                self.crew.enter(a, State.TAKEOFF)
+                altitude = self.plan.altitude
+                wait = timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
+                await self.state.until_stopped(a.vehicle.arm_and_takeoff(altitude, wait))
+                if self.state.stopping:
+                    return
+                # the first cell: the home cell, or the nearest free one nobody holds yet
+                cell = self.flight.nearest_free(first, exclude=a)
+                await self.flight.fly(a, cell, timing.takeoff_timeout)
+            a.cell = cell
+            await self.flight.sense_and_share(a, moved=True, since=0.0)
+            self.crew.enter(a, State.SEARCH)
+        except (TimeoutError, MavlinkError) as exc:
+            a.error = str(exc)
+            self.crew.enter(a, State.FAILED, error=str(exc))
+        except InputError:
+            raise  # bad input: the mission stops with it (run() raises it, one line, exit 2)
+        except Exception as exc:  # a driver's bug, or a reply it did not expect: this vehicle fails, not the mission
+            a.error = f"unexpected {type(exc).__name__} while starting: {exc}"
+            log.error("%s: %s", a.name, a.error)
+            log.debug("%s: the unexpected error", a.name, exc_info=True)
+            self.crew.enter(a, State.FAILED, error=a.error)
 
-async def preflight(c: Controller, a: Agent) -> None:
-    """Wait until the vehicle can arm in the mode it is flown in, its reports shown as they come
-    (NotReady after ready_timeout names the last one); then read its speed parameters and record
-    them with the timeouts they give (event "limits": a step of one cell, and the end action from
-    the far corner of the grid)."""
-    timing, m = c.plan.spec.timing, c.plan.spec.mission
-    await a.vehicle.wait_ready(timing.ready_timeout, report=lambda text: note(c, a, text))
-    limits = await a.vehicle.read_limits()
-    across = math.hypot(c.grid.width, c.grid.height) * c.grid.cell
-    if timing.end_timeout is not None:
-        end = timing.end_timeout
-    elif m.end_action == "land":
-        end = limits.land_timeout(c.plan.altitude)
-    else:
-        end = limits.rtl_timeout(across, c.plan.altitude)
-    c.rec.event(
-        "limits",
-        vehicle=a.name,
-        sysid=a.spec.sysid,
-        read=list(limits.read),
-        speed=round(limits.speed, 3),
-        climb=round(limits.climb, 3),
-        descent=round(limits.descent, 3),
-        land_speed=round(limits.land_speed, 3),
-        takeoff_timeout=round(timeouts.takeoff(timing.takeoff_timeout, a.vehicle, c.plan.altitude), 1),
-        step_timeout=round(limits.move_timeout(c.grid.cell) if timing.step_timeout is None else timing.step_timeout, 1),
-        end_timeout=round(end, 1),
-    )
-
-
-def note(c: Controller, a: Agent, text: str) -> None:
-    """What the vehicle says (or still lacks) while it gets ready: recorded (event "preflight"), logged
-    and shown in the live view; the same text within NOTE_REPEAT_S is shown once."""
-    now = time.monotonic()
-    if now - a.notes.get(text, -math.inf) < NOTE_REPEAT_S:
-        return
-    a.notes[text] = now
-    a.status = text
-    c.rec.event("preflight", vehicle=a.name, sysid=a.spec.sysid, text=text)
-    log.info("%s: %s", a.name, text)
-    if c.view is not None:
-        c.view(c)
-
-
-async def upload_fence(c: Controller, a: Agent, home: Any) -> None:
-    """The mission's fence to the vehicle, before it takes off (preflight, and again before a vehicle on
-    the ground rejoins). A vehicle whose home is outside the fence, or that does not take the fence,
-    does not fly (the others do)."""
-    fence = c.fence
-    assert fence is not None
-    if not fence_contains(fence, home.lat, home.lon):
-        why = (
-            f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
-            "boundary); launch it inside the area, or fly without fence"
-        )
-        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=why)
-        raise MavlinkError(why)
-    try:
-        await c.until_stopped(a.vehicle.upload_fence(fence))
-    except (TimeoutError, MavlinkError) as exc:
-        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=str(exc))
-        raise MavlinkError(f"{exc}; without its fence {a.name} does not take off") from None
-    if not c.stopping:
-        c.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=True, vertices=len(fence))
-
-
-async def rejoin(c: Controller, a: Agent) -> None:
-    """A vehicle back after a link loss: take it back from its failsafe in the air (or take off again
-    from the ground, after its fence), fly to the nearest free cell, and search again."""
-    timing = c.plan.spec.timing
-    try:
-        pos = a.vehicle.position
-        if a.vehicle.armed and pos is not None and pos.rel_alt > RESUME_ABOVE_M:
-            # still in the air, perhaps returning or landing on its failsafe: take it back there
-            await a.vehicle.resume()
+    async def preflight(self, a: Agent) -> None:
+        """Wait until the vehicle can arm in the mode it is flown in, its reports shown as they come
+        (NotReady after ready_timeout names the last one); then read its speed parameters and record
+        them with the timeouts they give (event "limits": a step of one cell, and the end action from
+        the far corner of the grid)."""
+        timing, m = self.plan.spec.timing, self.plan.spec.mission
+        await a.vehicle.wait_ready(timing.ready_timeout, report=lambda text: self.note(a, text))
+        limits = await a.vehicle.read_limits()
+        across = math.hypot(self.plan.grid.width, self.plan.grid.height) * self.plan.grid.cell
+        if timing.end_timeout is not None:
+            end = timing.end_timeout
+        elif m.end_action == "land":
+            end = limits.land_timeout(self.plan.altitude)
         else:
-            if c.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
-                await c.until_stopped(a.vehicle.wait_ready(timing.ready_timeout, report=lambda t: note(c, a, t)))
-                if a.vehicle.home is None:
-                    raise MavlinkError(f"{a.name}: no home position")
-                await upload_fence(c, a, a.vehicle.home)
-            altitude = c.plan.altitude
-            async with c.takeoff_slots:
-                await a.vehicle.arm_and_takeoff(altitude, timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude))
-        pos = a.vehicle.position
-        here = c.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
-        if here is None or not c.grid.in_grid(*here):
-            here = a.cell or (0, 0)
-        a.cell = None
-        cell = nearest_free(c, here, exclude=a)
-        a.cell = cell
-        since = time.monotonic()
-        await fly(c, a, cell, None if timing.step_timeout is None else timing.step_timeout * 3)
-        await sense_and_share(c, a, moved=True, since=since)
-        c.enter(a, State.SEARCH, rejoined=True)
-    except asyncio.CancelledError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a task that dies silently would leave the vehicle in REJOIN
-        if not isinstance(exc, (MavlinkError, asyncio.TimeoutError)):
-            log.exception("%s: rejoining failed", a.name)
-        a.error = str(exc) or type(exc).__name__
-        c.enter(a, State.FAILED, error=a.error)
-    finally:
-        a.rejoin_task = None
+            end = limits.rtl_timeout(across, self.plan.altitude)
+        self.rec.event(
+            "limits",
+            vehicle=a.name,
+            sysid=a.spec.sysid,
+            read=list(limits.read),
+            speed=round(limits.speed, 3),
+            climb=round(limits.climb, 3),
+            descent=round(limits.descent, 3),
+            land_speed=round(limits.land_speed, 3),
+            takeoff_timeout=round(timeouts.takeoff(timing.takeoff_timeout, a.vehicle, self.plan.altitude), 1),
+            step_timeout=round(
+                limits.move_timeout(self.plan.grid.cell) if timing.step_timeout is None else timing.step_timeout, 1
+            ),
+            end_timeout=round(end, 1),
+        )
+
+    def note(self, a: Agent, text: str) -> None:
+        """What the vehicle says (or still lacks) while it gets ready: recorded (event "preflight"), logged
+        and shown in the live view; the same text within NOTE_REPEAT_S is shown once."""
+        now = time.monotonic()
+        if now - a.notes.get(text, -math.inf) < NOTE_REPEAT_S:
+            return
+        a.notes[text] = now
+        a.status = text
+        self.rec.event("preflight", vehicle=a.name, sysid=a.spec.sysid, text=text)
+        log.info("%s: %s", a.name, text)
+        if self.show is not None:
+            self.show()
+
+    async def upload_fence(self, a: Agent, home: Any) -> None:
+        """The mission's fence to the vehicle, before it takes off (preflight, and again before a vehicle on
+        the ground rejoins). A vehicle whose home is outside the fence, or that does not take the fence,
+        does not fly (the others do)."""
+        fence = self.fence
+        assert fence is not None
+        if not fence_contains(fence, home.lat, home.lon):
+            why = (
+                f"{a.name}: home {home.lat:.6f},{home.lon:.6f} is outside the fence (the search area's "
+                "boundary); launch it inside the area, or fly without fence"
+            )
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=why)
+            raise MavlinkError(why)
+        try:
+            await self.state.until_stopped(a.vehicle.upload_fence(fence))
+        except (TimeoutError, MavlinkError) as exc:
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=False, error=str(exc))
+            raise MavlinkError(f"{exc}; without its fence {a.name} does not take off") from None
+        if not self.state.stopping:
+            self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=True, vertices=len(fence))
+
+    async def rejoin(self, a: Agent) -> None:
+        """A vehicle back after a link loss: take it back from its failsafe in the air (or take off again
+        from the ground, after its fence), fly to the nearest free cell, and search again."""
+        timing = self.plan.spec.timing
+        try:
+            pos = a.vehicle.position
+            if a.vehicle.armed and pos is not None and pos.rel_alt > RESUME_ABOVE_M:
+                # still in the air, perhaps returning or landing on its failsafe: take it back there
+                await a.vehicle.resume()
+            else:
+                if self.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
+                    await self.state.until_stopped(
+                        a.vehicle.wait_ready(timing.ready_timeout, report=lambda t: self.note(a, t))
+                    )
+                    if a.vehicle.home is None:
+                        raise MavlinkError(f"{a.name}: no home position")
+                    await self.upload_fence(a, a.vehicle.home)
+                altitude = self.plan.altitude
+                async with self.takeoff_slots:
+                    await a.vehicle.arm_and_takeoff(
+                        altitude, timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
+                    )
+            pos = a.vehicle.position
+            here = self.plan.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
+            if here is None or not self.plan.grid.in_grid(*here):
+                here = a.cell or (0, 0)
+            a.cell = None
+            cell = self.flight.nearest_free(here, exclude=a)
+            a.cell = cell
+            since = time.monotonic()
+            await self.flight.fly(a, cell, None if timing.step_timeout is None else timing.step_timeout * 3)
+            await self.flight.sense_and_share(a, moved=True, since=since)
+            self.crew.enter(a, State.SEARCH, rejoined=True)
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a task that dies silently would leave the vehicle in REJOIN
+            if not isinstance(exc, (MavlinkError, asyncio.TimeoutError)):
+                log.exception("%s: rejoining failed", a.name)
+            a.error = str(exc) or type(exc).__name__
+            self.crew.enter(a, State.FAILED, error=a.error)
+        finally:
+            a.rejoin_task = None

@@ -33,194 +33,216 @@ import numpy as np
 
 from swarmctl.knowledge.stepping import poll_all
 from swarmctl.mission.agent import Agent, State
-from swarmctl.mission.flight import fly_all, held, sense_and_share_all
-from swarmctl.mission.launch import rejoin
-from swarmctl.mission.watch import watch
+from swarmctl.mission.state import quietly
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 if TYPE_CHECKING:
-    from swarmctl.mission.controller import Controller
+    from collections.abc import Callable
+
+    from swarmctl.mission.crew import Crew
+    from swarmctl.mission.decide import FieldPolicy
+    from swarmctl.mission.finish import FinishLine
+    from swarmctl.mission.flight import Flight
+    from swarmctl.mission.launch import Launch
+    from swarmctl.mission.recorder import Recorder
+    from swarmctl.mission.spec import BatteryTable, TimingTable
+    from swarmctl.mission.state import MissionState
+    from swarmctl.mission.watch import Watch
+    from swarmctl.world.guard import SafetyGuard
 
 
-async def search(c: Controller) -> None:
-    """Decision rounds until the search ends; sets c.outcome."""
-    timing = c.plan.spec.timing
-    c.search_started = time.monotonic()
-    while True:
-        t0, cpu0, all0 = time.monotonic(), time.thread_time(), time.process_time()
-        poll_all([a.exchange for a in c.agents])
-        for a in c.agents:
-            a.track()
-        update_states(c)
-        await watch(c)  # what was not commanded (swarmctl.mission.watch)
-        outcome = ended(c)
-        if outcome is not None:
-            c.outcome = outcome
-            return
-        moved = await decision_round(c)
-        c.round_times.append(time.monotonic() - t0)
-        c.cpu_times.append(time.thread_time() - cpu0)
-        c.process_cpu_times.append(time.process_time() - all0)
-        if c.view is not None:
-            c.view(c)
-        # nobody moved (all staying or waiting): do not spin faster than 10 rounds a second
-        wait = max(timing.step_period, 0.0 if moved else 0.1) - (time.monotonic() - t0)
-        if wait > 0:
-            await c.pause(wait)
-        elif not any(a.live for a in c.agents):
-            await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
+class Rounds:
+    """The search's decision rounds for the crew: the `[timing]` and `[battery]` settings, the policy,
+    the guard, the watch, how vehicles fly (Flight) and rejoin (Launch), the finish line, and `show`,
+    called after each round for the live view."""
 
+    def __init__(
+        self,
+        timing: TimingTable,
+        battery: BatteryTable,
+        policy: FieldPolicy,
+        guard: SafetyGuard,
+        rec: Recorder,
+        state: MissionState,
+        crew: Crew,
+        watch: Watch,
+        flight: Flight,
+        launch: Launch,
+        finish: FinishLine,
+        show: Callable[[], None] | None = None,
+    ):
+        self.timing, self.battery, self.policy, self.guard = timing, battery, policy, guard
+        self.rec, self.state, self.crew, self.watch = rec, state, crew, watch
+        self.flight, self.launch, self.finish, self.show = flight, launch, finish, show
 
-def ended(c: Controller) -> str | None:
-    """The search's outcome if it is over, else None."""
-    if c.stopping:
-        return "interrupted"
-    live = [a for a in c.agents if a.live]
-    if not live and not any(a.state is State.LOST for a in c.agents):
-        return "failed"
-    if not c.finish.classic:  # the mission file's finish line (swarmctl.mission.finish)
-        outcome = c.finish.check(c)
-        if outcome is not None:
-            return outcome
-    elif live and all(a.state is State.HOVER for a in live) and others_hovering(c):
-        cells = [a.cell for a in live]
-        if len(set(cells)) == len(cells):
-            # complete when every vehicle is hovering on a target; partial when some dropped out
-            return "complete" if len(live) == len(c.agents) else "partial"
-    assert c.search_started is not None  # the rounds run once the search has started
-    if time.monotonic() - c.search_started > c.plan.spec.timing.time_limit:
-        return "time limit"
-    return None
+    async def search(self) -> None:
+        """Decision rounds until the search ends; sets self.state.outcome."""
+        timing = self.timing
+        self.state.search_started = time.monotonic()
+        while True:
+            t0, cpu0, all0 = time.monotonic(), time.thread_time(), time.process_time()
+            poll_all([a.exchange for a in self.crew.agents])
+            for a in self.crew.agents:
+                a.track()
+            self.update_states()
+            await self.watch.check()  # what was not commanded (swarmctl.mission.watch)
+            outcome = self.ended()
+            if outcome is not None:
+                self.state.outcome = outcome
+                return
+            moved = await self.decision_round()
+            self.state.times.round.append(time.monotonic() - t0)
+            self.state.times.cpu.append(time.thread_time() - cpu0)
+            self.state.times.process_cpu.append(time.process_time() - all0)
+            if self.show is not None:
+                self.show()
+            # nobody moved (all staying or waiting): do not spin faster than 10 rounds a second
+            wait = max(timing.step_period, 0.0 if moved else 0.1) - (time.monotonic() - t0)
+            if wait > 0:
+                await self.state.pause(wait)
+            elif not any(a.live for a in self.crew.agents):
+                await asyncio.sleep(0.2)  # everyone is lost: wait for them without spinning
 
+    def ended(self) -> str | None:
+        """The search's outcome if it is over, else None."""
+        if self.state.stopping:
+            return "interrupted"
+        live = [a for a in self.crew.agents if a.live]
+        if not live and not any(a.state is State.LOST for a in self.crew.agents):
+            return "failed"
+        if not self.finish.classic:  # the mission file's finish line (swarmctl.mission.finish)
+            outcome = self.finish.check()
+            if outcome is not None:
+                return outcome
+        elif live and all(a.state is State.HOVER for a in live) and self.crew.others_hovering():
+            cells = [a.cell for a in live]
+            if len(set(cells)) == len(cells):
+                # complete when every vehicle is hovering on a target; partial when some dropped out
+                return "complete" if len(live) == len(self.crew.agents) else "partial"
+        assert self.state.search_started is not None  # the rounds run once the search has started
+        if time.monotonic() - self.state.search_started > self.timing.time_limit:
+            return "time limit"
+        return None
 
-def others_hovering(c: Controller) -> bool:
-    """Onboard mode: every vehicle of the mission flown by another process is known (through the
-    knowledge channel) to hover on a target of its own. Always true in ground mode."""
-    mine = {a.cell for a in c.agents if a.state is State.HOVER}
-    for v in range(len(c.plan.spec.vehicles)):
-        if c.ours(v):
-            continue
-        known = [p for p in (a.knowledge.positions.get(v) for a in c.agents) if p is not None]
-        if not known:
-            return False
-        newest = max(known, key=lambda p: p.order())
-        if not newest.on_target or newest.cell in mine:
-            return False
-    return True
+    def update_states(self) -> None:
+        """Each agent's own transitions, with their side effects, then the hover rule."""
+        for a in self.crew.agents:
+            change = a.next_state(self.battery.return_below)
+            if change is not None:
+                state, extra = change
+                if state is State.LOST and a.rejoin_task is not None:
+                    a.rejoin_task.cancel()
+                    a.rejoin_task = None
+                self.crew.enter(a, state, **extra)
+                if state is State.REJOIN:
+                    a.rejoin_task = self.state.spawn(self.launch.rejoin(a), f"rejoin {a.name}")
+                elif state is State.OVERRIDE:
+                    a.cell = None  # the pilot took over: stop commanding it
+                elif state is State.LOW_BATTERY:
+                    a.end_action = "rtl"
+                    self.state.spawn(quietly(a.vehicle.rtl()), f"rtl {a.name}")
+                    a.cell = None
+                continue
+            # on_find = "mark": a find is reported and searched past, never hovered on (swarmctl.mission.finish)
+            if self.finish.marks:
+                continue
+            if (
+                a.state is State.SEARCH
+                and a.cell is not None
+                and a.cell in a.knowledge.targets
+                and self.policy.parks(len(a.knowledge.targets), self.crew.vehicles)  # the hover rule
+            ):
+                hovering = {b.cell for b in self.crew.agents if b is not a and b.state is State.HOVER}
+                hovering |= {p.cell for v, p in a.knowledge.peers.items() if p.on_target and not self.crew.ours(v)}
+                if a.cell not in hovering:
+                    self.crew.enter(a, State.HOVER)
+                    a.exchange.step(self.state.step, a.cell, True)  # tell the others this target is taken
 
-
-def update_states(c: Controller) -> None:
-    """Each agent's own transitions, with their side effects, then the hover rule."""
-    for a in c.agents:
-        change = a.next_state(c.plan.spec.battery.return_below)
-        if change is not None:
-            state, extra = change
-            if state is State.LOST and a.rejoin_task is not None:
-                a.rejoin_task.cancel()
-                a.rejoin_task = None
-            c.enter(a, state, **extra)
-            if state is State.REJOIN:
-                a.rejoin_task = c.spawn(rejoin(c, a), f"rejoin {a.name}")
-            elif state is State.OVERRIDE:
-                a.cell = None  # the pilot took over: stop commanding it
-            elif state is State.LOW_BATTERY:
-                a.end_action = "rtl"
-                c.spawn(c.quietly(a.vehicle.rtl()), f"rtl {a.name}")
-                a.cell = None
-            continue
-        # on_find = "mark": a find is reported and searched past, never hovered on (swarmctl.mission.finish)
-        if c.finish.marks:
-            continue
-        if (
-            a.state is State.SEARCH
-            and a.cell is not None
-            and a.cell in a.knowledge.targets
-            and c.policy.parks(len(a.knowledge.targets), len(c.plan.spec.vehicles))  # the hover rule
-        ):
-            hovering = {b.cell for b in c.agents if b is not a and b.state is State.HOVER}
-            hovering |= {p.cell for v, p in a.knowledge.peers.items() if p.on_target and not c.ours(v)}
-            if a.cell not in hovering:
-                c.enter(a, State.HOVER)
-                a.exchange.step(c.step, a.cell, True)  # tell the others this target is taken
-
-
-async def decision_round(c: Controller) -> bool:
-    """One decision round; True when some vehicle moved."""
-    timing = c.plan.spec.timing
-    searching = [a for a in c.agents if a.state is State.SEARCH]
-    t = time.monotonic()
-    n = len(c.plan.spec.vehicles)
-    knowledges = [a.knowledge for a in searching]
-    beliefs = c.policy.beliefs(knowledges, c.step, n, targets_done=c.finish.marks) if searching else None
-    choices = c.policy.decide(beliefs) if beliefs is not None else []
-    c.decide_times.append(time.monotonic() - t)
-    proposed = {
-        a.index: (a.here[0] + int(MOVES[ch.move][0]), a.here[1] + int(MOVES[ch.move][1]))
-        for a, ch in zip(searching, choices)
-    }
-    # guard every vehicle this process knows of, in mission order; vehicles not searching stay
-    order = [a for a in c.agents if a.cell is not None and a.state is not State.FAILED]
-    current = [a.cell for a in order]
-    wanted = [proposed.get(a.index, a.cell) for a in order]
-    outside = sorted(held(c) - set(current))  # other processes' vehicles: they stay
-    decisions = c.guard.guard_moves(
-        np.array(current + outside, dtype=np.int64).reshape(-1, 2),
-        np.array(wanted + outside, dtype=np.int64).reshape(-1, 2),
-    )
-    guarded = {a.index: d for a, d in zip(order, decisions)}
-    c.step += 1
-    if beliefs is not None:  # what --verify decides again: the beliefs, and the guard's other vehicles
-        held_cells = [(a.index, a.here) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
-        c.rec.inputs(c.step, [a.name for a in searching], beliefs, held_cells)
-    moves: list[tuple[Agent, tuple[int, int]]] = []
-    records, refusals = [], []
-    for a, ch in zip(searching, choices):
-        d = guarded[a.index]
-        if d.refused:
-            a.refused += 1
-            refused = dict(vehicle=a.name, step=c.step, cell=a.cell, proposed=proposed[a.index], reason=d.refused)
-            refusals.append(("refused", refused))
-        if d.cell != a.cell:
-            moves.append((a, d.cell))
-        a.steps += 1
-        record = dict(
-            vehicle=a.name,
-            sysid=a.spec.sysid,
-            cell=a.cell,
-            obs=ch.obs_digest,
-            q=ch.q,
-            move=MOVE_NAMES[ch.move],
-            guarded=MOVE_NAMES[move_index(a.here, d.cell)],
-            refused=d.refused,
-            received=a.received_since(),
+    async def decision_round(self) -> bool:
+        """One decision round; True when some vehicle moved."""
+        timing = self.timing
+        searching = [a for a in self.crew.agents if a.state is State.SEARCH]
+        t = time.monotonic()
+        n = self.crew.vehicles
+        knowledges = [a.knowledge for a in searching]
+        beliefs = (
+            self.policy.beliefs(knowledges, self.state.step, n, targets_done=self.finish.marks) if searching else None
         )
-        if ch.by:  # the move came from a planner, not from the Q-values recorded
-            record["by"] = ch.by
-        records.append(record)
-    c.rec.events_at_once(refusals)  # before the vehicles fly: one write for the step's refusals
-    since = time.monotonic()
-    reached = await fly_all(c, moves, timing.step_timeout)
-    waited = time.monotonic() - since
-    for (a, cell), ok in zip(moves, reached):
-        if not ok:
-            a.timeouts += 1
-            c.rec.event("step_timeout", vehicle=a.name, step=c.step, cell=cell)
-        a.cell = cell  # the cell is claimed either way; the vehicle keeps flying there
-    moved = {a.index for a, _ in moves}
-    live = [a for a in c.agents if a.state in (State.SEARCH, State.HOVER)]
-    t = time.monotonic()
-    await sense_and_share_all(c, live, moved, since)
-    c.wait_times.append(waited + time.monotonic() - t)
-    others = [
-        dict(vehicle=a.name, sysid=a.spec.sysid, state=a.state, cell=a.cell, received=a.received_since())
-        for a in c.agents
-        if a not in searching
-    ]
-    c.rec.plain_event(
-        "step", step=c.step, vehicles=records, others=others, decide_ms=round(c.decide_times[-1] * 1000, 3)
-    )
-    c.rec.knowledge(c.step, [(a.name, a.knowledge) for a in c.agents])
-    return bool(moves)
+        choices = self.policy.decide(beliefs) if beliefs is not None else []
+        self.state.times.decide.append(time.monotonic() - t)
+        proposed = {
+            a.index: (a.here[0] + int(MOVES[ch.move][0]), a.here[1] + int(MOVES[ch.move][1]))
+            for a, ch in zip(searching, choices)
+        }
+        # guard every vehicle this process knows of, in mission order; vehicles not searching stay
+        order = [a for a in self.crew.agents if a.cell is not None and a.state is not State.FAILED]
+        current = [a.cell for a in order]
+        wanted = [proposed.get(a.index, a.cell) for a in order]
+        outside = sorted(self.crew.held() - set(current))  # other processes' vehicles: they stay
+        decisions = self.guard.guard_moves(
+            np.array(current + outside, dtype=np.int64).reshape(-1, 2),
+            np.array(wanted + outside, dtype=np.int64).reshape(-1, 2),
+        )
+        guarded = {a.index: d for a, d in zip(order, decisions)}
+        self.state.step += 1
+        if beliefs is not None:  # what --verify decides again: the beliefs, and the guard's other vehicles
+            held_cells = [(a.index, a.here) for a in order if a.index not in proposed] + [(-1, x) for x in outside]
+            self.rec.inputs(self.state.step, [a.name for a in searching], beliefs, held_cells)
+        moves: list[tuple[Agent, tuple[int, int]]] = []
+        records, refusals = [], []
+        for a, ch in zip(searching, choices):
+            d = guarded[a.index]
+            if d.refused:
+                a.refused += 1
+                refused = dict(
+                    vehicle=a.name, step=self.state.step, cell=a.cell, proposed=proposed[a.index], reason=d.refused
+                )
+                refusals.append(("refused", refused))
+            if d.cell != a.cell:
+                moves.append((a, d.cell))
+            a.steps += 1
+            record = dict(
+                vehicle=a.name,
+                sysid=a.spec.sysid,
+                cell=a.cell,
+                obs=ch.obs_digest,
+                q=ch.q,
+                move=MOVE_NAMES[ch.move],
+                guarded=MOVE_NAMES[move_index(a.here, d.cell)],
+                refused=d.refused,
+                received=a.received_since(),
+            )
+            if ch.by:  # the move came from a planner, not from the Q-values recorded
+                record["by"] = ch.by
+            records.append(record)
+        self.rec.events_at_once(refusals)  # before the vehicles fly: one write for the step's refusals
+        since = time.monotonic()
+        reached = await self.flight.fly_all(moves, timing.step_timeout)
+        waited = time.monotonic() - since
+        for (a, cell), ok in zip(moves, reached):
+            if not ok:
+                a.timeouts += 1
+                self.rec.event("step_timeout", vehicle=a.name, step=self.state.step, cell=cell)
+            a.cell = cell  # the cell is claimed either way; the vehicle keeps flying there
+        moved = {a.index for a, _ in moves}
+        live = [a for a in self.crew.agents if a.state in (State.SEARCH, State.HOVER)]
+        t = time.monotonic()
+        await self.flight.sense_and_share_all(live, moved, since)
+        self.state.times.wait.append(waited + time.monotonic() - t)
+        others = [
+            dict(vehicle=a.name, sysid=a.spec.sysid, state=a.state, cell=a.cell, received=a.received_since())
+            for a in self.crew.agents
+            if a not in searching
+        ]
+        self.rec.plain_event(
+            "step",
+            step=self.state.step,
+            vehicles=records,
+            others=others,
+            decide_ms=round(self.state.times.decide[-1] * 1000, 3),
+        )
+        self.rec.knowledge(self.state.step, [(a.name, a.knowledge) for a in self.crew.agents])
+        return bool(moves)
 
 
 def move_index(cur: tuple[int, int], new: tuple[int, int]) -> int:

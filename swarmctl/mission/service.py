@@ -17,8 +17,10 @@ from swarmctl.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_INTERRUPTED, EXIT_
 from swarmctl.mission import finish, sharing
 from swarmctl.mission.agent import State
 from swarmctl.mission.controller import Controller
+from swarmctl.mission.crew import Crew
 from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder, reserve_for
+from swarmctl.mission.state import MissionState
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.geo.grid import GeoGrid
@@ -83,22 +85,22 @@ class LiveView:
         self._notes: dict[str, str | None] = {}  # vehicle -> the preflight note last printed
         self._alarms: dict[str, str | None] = {}  # vehicle -> the alarm last printed
 
-    def __call__(self, c: Controller) -> None:
+    def __call__(self, state: MissionState, crew: Crew) -> None:
+        agents = crew.agents
         if self.quiet:
             return
         now = time.monotonic()
-        found = len(set().union(*(a.knowledge.targets for a in c.agents))) if c.agents else 0
-        if c.ended is not None:  # as the search ended (as the summary says), not as the end actions go
-            hovering = len(c.on_targets)
-            elapsed = c.ended - c.search_started if c.search_started else 0.0
+        found = len(set().union(*(a.knowledge.targets for a in agents))) if agents else 0
+        if state.ended is not None:  # as the search ended (as the summary says), not as the end actions go
+            hovering = len(state.on_targets)
         else:
-            hovering = sum(a.state is State.HOVER for a in c.agents)
-            elapsed = now - c.search_started if c.search_started else 0.0
-        progress = f"step {c.step}  targets found {found}  hovering {hovering}/{len(c.agents)}  {elapsed:.1f} s" + (
-            f"  -> {c.outcome}" if c.outcome else ""
+            hovering = sum(a.state is State.HOVER for a in agents)
+        elapsed = state.search_seconds()
+        progress = f"step {state.step}  targets found {found}  hovering {hovering}/{len(agents)}  {elapsed:.1f} s" + (
+            f"  -> {state.outcome}" if state.outcome else ""
         )
         if not self.live:
-            for a in c.agents:
+            for a in agents:
                 if a.status is not None and self._notes.get(a.name) != a.status:
                     self._notes[a.name] = a.status
                     print(f"{a.name}: {a.status}", file=self.stream, flush=True)
@@ -106,12 +108,12 @@ class LiveView:
                     self._alarms[a.name] = a.alarm
                     if a.alarm is not None:
                         print(f"{a.name}: ALARM {a.alarm}", file=self.stream, flush=True)
-            if c.search_started and now - self._last >= self.every or c.outcome:
+            if state.search_started and now - self._last >= self.every or state.outcome:
                 self._last = now
                 print(progress, file=self.stream, flush=True)
             return
         rows = [f"{'vehicle':<10} {'state':<12} {'cell':<9} {'battery':>7} {'link':<5} {'targets':>7}"]
-        for a in c.agents:
+        for a in agents:
             cell = "-" if a.cell is None else f"{a.cell[0]},{a.cell[1]}"
             battery = a.battery()
             says = f"  {a.status[:60]}" if a.state == State.PREFLIGHT and a.status else ""
