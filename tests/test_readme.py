@@ -266,7 +266,7 @@ def test_architecture_round_uses_what_rounds_calls():
     is for tests and callers holding Knowledge only)."""
     rounds = (PACKAGE / "mission" / "rounds.py").read_text(encoding="utf-8")
     text = ARCHITECTURE.read_text(encoding="utf-8")
-    assert "c.policy.beliefs(" in rounds and "c.policy.decide(" in rounds
+    assert "self.policy.beliefs(" in rounds and "self.policy.decide(" in rounds
     assert "FieldPolicy.beliefs" in text and "FieldPolicy.decide" in text and "FieldPolicy.choose" not in text
 
 
