@@ -59,6 +59,11 @@ def _out_folder(out: Path | None, name: str) -> Path:
 
 
 def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
+    from swarmctl.mission.service import fault_line
+
+    fault = fault_line(summary, folder)
+    if fault is not None:  # shown even when quiet: it is an error
+        click.echo(f"swarmctl: error: {fault}", err=True)
     if not quiet:
         found = len(summary["targets_found"])
         lost = summary.get("recording_lost") or {}

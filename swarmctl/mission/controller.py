@@ -38,7 +38,7 @@ from swarmctl.mission.plan import MissionPlan
 from swarmctl.mission.recorder import Recorder
 from swarmctl.mission.rounds import Rounds
 from swarmctl.mission.sharing import link_outlet, make_bus, open_exchange
-from swarmctl.mission.state import MissionState
+from swarmctl.mission.state import MissionState, fault_record
 from swarmctl.mission.watch import Watch
 from swarmctl.signing import signing_counts
 from swarmctl.world.guard import SafetyGuard
@@ -164,8 +164,23 @@ class Controller:
         return self.state.times.overhead_ms()
 
     def _show(self) -> None:
-        if self.view is not None:
+        """The live view; one that fails is reported once (a `fault` event) and turned off: a broken
+        display never stops the search."""
+        if self.view is None:
+            return
+        try:
             self.view(self.state, self.crew)
+        except Exception as exc:
+            self.view = None
+            fault = fault_record(exc, "live view")
+            log.error("the live view failed and is off (%s: %s); the search goes on", fault["where"], fault["error"])
+            self._record_fault(fault)
+
+    def _record_fault(self, fault: dict[str, str]) -> None:
+        try:
+            self.rec.event("fault", **fault)
+        except Exception as exc:  # the recorder may be what failed: the log keeps it
+            log.error("the fault was not recorded: %s: %s", type(exc).__name__, exc)
 
     async def run(self) -> str:
         """Fly the mission; returns the outcome ("complete", "partial", "time limit", "failed",
@@ -194,8 +209,10 @@ class Controller:
             state.outcome = "interrupted"
             await asyncio.shield(self._finish_safely())
             raise
-        except Exception:  # a bug: the vehicles in the air still get their end action before it is raised
+        except Exception as exc:  # a bug: the vehicles in the air still get their end action before it is raised
             state.outcome = "failed"
+            state.fault = fault_record(exc, "mission")
+            self._record_fault(state.fault)
             await self._finish_safely()
             raise
         await self._finish_safely()
@@ -371,6 +388,7 @@ class Controller:
             links=links,
             overhead_ms=self.overhead_ms(),
             recording_lost=dict(self.rec.lost),  # file -> why it stopped being written (swarmctl.mission.recorder)
+            fault=self.state.fault,  # an unexpected error that stopped the mission (events "fault")
         )
         out.update(self.finish.summary(self.outcome, out["targets_found"]))
         if extra:

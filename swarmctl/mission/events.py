@@ -350,6 +350,17 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
         "a vehicle's end action failed",
         (_VEHICLE, Field("error", "str", "-", "why")),
     ),
+    "fault": (
+        "events.jsonl",
+        "an unexpected error (a bug, or a reply nothing foresaw) in a part of the controller: in the live view "
+        "it is reported and the view turned off; anywhere else the search stops there, and every vehicle in "
+        "the air is given its end action (the traceback is in fault.txt)",
+        (
+            Field("part", "str", "-", "where: `live view`, or `mission` (the launch, the rounds and what they call)"),
+            Field("where", "str", "-", "the innermost place in swarmctl it was raised: `file:line in function`"),
+            Field("error", "str", "-", "the exception: `Type: message`"),
+        ),
+    ),
     "recording_lost": (
         "events.jsonl",
         "a file of the recording stopped being written (a write failed: a full disk, a read-only mount, an I/O "

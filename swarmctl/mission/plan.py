@@ -154,8 +154,8 @@ def load_grid(spec: MissionSpec) -> GeoGrid:
         return GeoGrid.load(m.grid)
     if m.area is None:
         raise ValueError("the spec names neither grid nor area: give make_plan the grid")
-    from swarmctl.geo.areas import load_area
     from swarmctl.geo.buildings import load_buildings
+    from swarmctl.geo.load import load_area
 
     buildings = load_buildings(m.buildings) if m.buildings is not None else None
     grid, _report = make_grid(

@@ -8,6 +8,7 @@ import math
 import signal
 import sys
 import time
+import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -189,7 +190,16 @@ def run_controller(
                 loop.remove_signal_handler(sig)
 
     try:
-        outcome = asyncio.run(main())
+        try:
+            outcome = asyncio.run(main())
+        except Exception as exc:
+            if controller.state.fault is None:
+                raise  # not from the flight (its end actions were not the question)
+            # a bug or a reply nothing foresaw stopped the mission, after every vehicle's end action:
+            # one line on the terminal (service.fault_line), the traceback in the recording
+            outcome = "failed"
+            text = "".join(traceback.format_exception(exc))
+            rec.write_extra("fault.txt", lambda: (folder / "fault.txt").write_text(text, encoding="utf-8"))
         summary = controller.summary(extra_summary(controller) if extra_summary else None)
         rec.write_summary(summary, running=False)
         rec.write_extra("targets.geojson", lambda: write_targets_geojson(folder / "targets.geojson", summary))
@@ -202,6 +212,17 @@ def run_controller(
     if rec.lost:
         return EXIT_RECORDING_LOST, summary
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
+
+
+def fault_line(summary: dict, folder: Path) -> str | None:
+    """The one line a mission stopped by an unexpected error ends with (None: it was not)."""
+    fault = summary.get("fault")
+    if not fault:
+        return None
+    return (
+        f"the mission stopped on an unexpected error in {fault['where']} ({fault['error']}); every vehicle in "
+        f"the air was given its end action; the traceback is in {folder / 'fault.txt'}"
+    )
 
 
 def _found_by(t: dict) -> dict:

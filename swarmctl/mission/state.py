@@ -7,13 +7,15 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+import traceback
 from collections.abc import Awaitable, Coroutine
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
 
-from swarmctl.errors import InputError
+from swarmctl.errors import InputError, printable
 from swarmctl.mavlink.errors import MavlinkError
 
 log = logging.getLogger(__name__)
@@ -66,6 +68,7 @@ class MissionState:
         self.ended: float | None = None
         self.on_targets: list[tuple[int, int]] = []  # the cells hovered on when the search ended
         self.mission_error: InputError | None = None  # what stopped the mission: raised by Controller.run
+        self.fault: dict[str, str] | None = None  # an unexpected error that stopped it (fault_record)
         self.times = RoundTimes()
         self.tasks: set[asyncio.Task] = set()  # every task started with spawn(), until it is done
         self._stop = asyncio.Event()
@@ -130,6 +133,22 @@ class MissionState:
             _, late = await asyncio.wait(pending, timeout=seconds)
             for t in late:
                 await cancel(t)
+
+
+FAULT_TEXT_CHARS = 300  # a fault's message, as recorded (the whole traceback goes to fault.txt)
+
+
+def fault_record(exc: BaseException, part: str) -> dict[str, str]:
+    """What the recording says of an unexpected error: the part it stopped, the innermost place in
+    swarmctl it was raised (`file:line in function`), and `Type: message` on one line."""
+    where = "?"
+    for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+        path = Path(frame.filename)
+        if "swarmctl" in path.parts:
+            where = f"{'/'.join(path.parts[path.parts.index('swarmctl') :])}:{frame.lineno} in {frame.name}"
+            break
+    message = printable(" ".join(str(exc).split()))[:FAULT_TEXT_CHARS]
+    return dict(part=part, where=where, error=f"{type(exc).__name__}: {message}" if message else type(exc).__name__)
 
 
 async def quietly(coro: Awaitable[object]) -> None:

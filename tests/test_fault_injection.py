@@ -1,0 +1,114 @@
+"""Fault injection, one part of the controller at a time: an unexpected error (a bug, a reply nothing
+foresaw) raised mid-search in the decision round, the policy, the knowledge exchange, the recorder, a
+driver or the live table. Every vehicle in the air still gets its end action, the exit status says
+the mission failed (the live table's fault only turns the table off), and the recording reads to its
+last line and says where it happened."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from swarmctl.errors import EXIT_FAILED
+from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
+from swarmctl.mission import flight
+from swarmctl.mission.decide import FieldPolicy
+from swarmctl.mission.events import check_event
+from swarmctl.mission.recorder import Recorder
+from swarmctl.mission.rounds import Rounds
+from swarmctl.mission.service import LiveView, fault_line, run_controller
+from swarmctl.sim.swarm import SimSwarm
+from tests.mission_support import small_grid
+
+FAST = dict(takeoff_at_once=4, end_timeout=20.0)
+
+
+class Injected(RuntimeError):
+    """The fault: raised by a part on its `at`-th call."""
+
+
+def failing(real, at: int):
+    """`real` (a function or coroutine function), raising Injected from its `at`-th call on."""
+    calls = [0]
+
+    def check():
+        calls[0] += 1
+        if calls[0] >= at:
+            raise Injected(f"injected on call {calls[0]}")
+
+    if hasattr(real, "__code__") and real.__code__.co_flags & 0x80:  # a coroutine function
+
+        async def wrapped_async(*args, **kwargs):
+            check()
+            return await real(*args, **kwargs)
+
+        return wrapped_async
+
+    def wrapped(*args, **kwargs):
+        check()
+        return real(*args, **kwargs)
+
+    return wrapped
+
+
+# part -> (the object, the attribute, the call that raises); the calls fall in the search's first rounds
+PARTS = {
+    "decision round": (Rounds, "decision_round", 3),
+    "policy": (FieldPolicy, "decide", 3),
+    "knowledge exchange": (flight, "step_all", 3),
+    "recorder": (Recorder, "plain_event", 3),
+    "driver": (ArduPilotVehicle, "goto_nowait", 6),  # two take-off flights first
+}
+
+
+def lines(folder) -> list[dict]:
+    """events.jsonl, every line parsed and checked against the schema (a line cut short fails here)."""
+    out = []
+    for line in (folder / "events.jsonl").read_text().splitlines():
+        event = json.loads(line)
+        check_event(event, strict=True)
+        out.append(event)
+    return out
+
+
+def fly_with(monkeypatch, tmp_path, target, name, at, view=None):
+    monkeypatch.setattr(target, name, failing(getattr(target, name), at))
+    with SimSwarm(small_grid(), uavs=2, seed=3, speedup=60.0) as swarm:
+        plan = swarm.plan("frontier", end_action="rtl", time_limit=20.0, **FAST)
+        code, summary = run_controller(plan, tmp_path, view)
+        for mock in swarm.mocks:
+            mock.wait_for(lambda m: not m.state().armed, 60)  # home and disarmed: the end action flew
+    return code, summary
+
+
+@pytest.mark.parametrize("part", sorted(PARTS))
+def test_a_fault_in_each_part_still_brings_every_vehicle_home(part, monkeypatch, tmp_path):
+    target, name, at = PARTS[part]
+    code, summary = fly_with(monkeypatch, tmp_path, target, name, at)
+    assert code == EXIT_FAILED and summary["outcome"] == "failed"
+    fault = summary["fault"]
+    assert fault["part"] == "mission" and fault["error"].startswith("Injected: injected on call")
+    assert fault["where"].startswith("swarmctl/") and " in " in fault["where"]
+    assert [v["end_action"] for v in summary["vehicles"]] == ["rtl", "rtl"]
+    assert [v["end_state"] for v in summary["vehicles"]] == ["landed at home"] * 2
+    recorded = lines(tmp_path)
+    if part != "recorder":  # its step records are what failed; the events around them are there
+        assert any(e["event"] == "step" for e in recorded)
+    assert [e["error"] for e in recorded if e["event"] == "fault"] == [fault["error"]]
+    ended = sorted(e["vehicle"] for e in recorded if e["event"] == "end_action" and e["action"] == "rtl")
+    assert ended == sorted(v["name"] for v in summary["vehicles"])
+    assert [e["outcome"] for e in recorded if e["event"] == "end"] == ["failed"]
+    assert "Injected: injected on call" in (tmp_path / "fault.txt").read_text()
+    assert "every vehicle in the air was given its end action" in fault_line(summary, tmp_path)
+
+
+def test_a_fault_in_the_live_table_turns_it_off_and_the_search_goes_on(monkeypatch, tmp_path):
+    code, summary = fly_with(monkeypatch, tmp_path, LiveView, "__call__", 4, view=LiveView(live=False, quiet=False))
+    assert summary["fault"] is None  # the mission was not stopped by it
+    assert summary["outcome"] in ("complete", "time limit") and summary["steps"] > 3
+    assert code == (0 if summary["outcome"] == "complete" else EXIT_FAILED)
+    recorded = lines(tmp_path)
+    faults = [e for e in recorded if e["event"] == "fault"]
+    assert len(faults) == 1 and faults[0]["part"] == "live view"
+    assert [v["end_action"] for v in summary["vehicles"]] == ["rtl", "rtl"]
