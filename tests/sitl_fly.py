@@ -55,6 +55,7 @@ from tests.sitl_support import (
 
 ARDUCOPTER, PX4 = "arducopter", "px4"
 GRID = ROOT / "missions" / "chicago-loop" / "grid.npz"  # 50 x 50 cells of 10 m, planned for 40 m
+FAULT_ENTRY = ROOT / "tests" / "fault_entry.py"  # swarmctl with one part broken (Scenario.fault)
 MISSION_ID = 7
 ALTITUDE = 40.0
 HOME_ALT = 180.0  # metres AMSL at the Chicago Loop
@@ -105,6 +106,7 @@ class Scenario:
     deadline: float = 480.0  # wall seconds for the whole flight, end actions included
     grid: GeoGrid | None = None  # the grid flown (saved beside the mission file); None: the Chicago Loop's
     mission: dict[str, str] = field(default_factory=dict)  # more [mission] keys, values as TOML text
+    fault: str | None = None  # a part of the controller that raises mid-search (tests/fault_entry.py)
 
     def needs(self, kind: str) -> int:
         return sum(c.kind == kind for c in self.crafts)
@@ -496,7 +498,8 @@ def fly_scenario(scenario: Scenario, stopping: threading.Event, keep: Path | Non
                 detector = detector_process(scenario, craft, index, sims[craft.name], folder, grid_file)
                 flight.detectors.append(detector.start())
                 procs.append(flight.detectors[-1])
-        argv = [sys.executable, "-m", "swarmctl.cli", "fly", "--yes", "--no-live", "--out", str(flight.recording)]
+        entry = ["-m", "swarmctl.cli"] if scenario.fault is None else [str(FAULT_ENTRY), scenario.fault, "0"]
+        argv = [sys.executable, *entry, "fly", "--yes", "--no-live", "--out", str(flight.recording)]
         flight.fly = SimProcess("swarmctl fly", argv + [str(flight.mission_file)], folder / "fly").start()
         procs.append(flight.fly)
         if scenario.during is not None:

@@ -11,55 +11,15 @@ import json
 import pytest
 
 from swarmctl.errors import EXIT_FAILED
-from swarmctl.mavlink.autopilots.ardupilot import ArduPilotVehicle
-from swarmctl.mission import flight
-from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.events import check_event
-from swarmctl.mission.recorder import Recorder
-from swarmctl.mission.rounds import Rounds
 from swarmctl.mission.service import LiveView, fault_line, run_controller
 from swarmctl.sim.swarm import SimSwarm
+from tests.fault_entry import failing, parts
 from tests.mission_support import small_grid
 
+PARTS = parts()
+
 FAST = dict(takeoff_at_once=4, end_timeout=20.0)
-
-
-class Injected(RuntimeError):
-    """The fault: raised by a part on its `at`-th call."""
-
-
-def failing(real, at: int):
-    """`real` (a function or coroutine function), raising Injected from its `at`-th call on."""
-    calls = [0]
-
-    def check():
-        calls[0] += 1
-        if calls[0] >= at:
-            raise Injected(f"injected on call {calls[0]}")
-
-    if hasattr(real, "__code__") and real.__code__.co_flags & 0x80:  # a coroutine function
-
-        async def wrapped_async(*args, **kwargs):
-            check()
-            return await real(*args, **kwargs)
-
-        return wrapped_async
-
-    def wrapped(*args, **kwargs):
-        check()
-        return real(*args, **kwargs)
-
-    return wrapped
-
-
-# part -> (the object, the attribute, the call that raises); the calls fall in the search's first rounds
-PARTS = {
-    "decision round": (Rounds, "decision_round", 3),
-    "policy": (FieldPolicy, "decide", 3),
-    "knowledge exchange": (flight, "step_all", 3),
-    "recorder": (Recorder, "plain_event", 3),
-    "driver": (ArduPilotVehicle, "goto_nowait", 6),  # two take-off flights first
-}
 
 
 def lines(folder) -> list[dict]:

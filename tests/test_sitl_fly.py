@@ -74,6 +74,8 @@ SCENARIOS = {
         ),
         # the kill scenarios end by SIGTERM; the time limit only bounds a search whose vehicles come up late
         Scenario("kill", TRIO, time_limit=300.0, during=kill_then_terminate("charlie", ["alpha", "bravo"])),
+        # the policy raises in the search's third round: the mission stops there, the vehicle comes home
+        Scenario("fault", [Craft("alpha", ARDUCOPTER, (0, 0))], time_limit=60.0, fault="policy"),
         Scenario("px4-pair", PX4_PAIR, time_limit=40.0),
         Scenario("mixed", MIXED, time_limit=40.0),
         Scenario(
@@ -193,6 +195,19 @@ def test_two_arducopters_end_a_covered_search_complete_once_every_reachable_cell
     for n in ("alpha", "bravo"):
         assert r.vehicle(n)["end_state"] == "landed", r.describe()
         assert r.landings[n] is not None and not r.landings[n].armed, r.describe()
+
+
+@pytest.mark.scenario("fault")
+def test_a_fault_in_the_policy_mid_search_still_brings_the_arducopter_home_and_says_where(flights):
+    r = flown(flights, "fault")
+    assert (r.rc, r.summary["outcome"]) == (1, "failed"), r.describe()
+    fault = r.summary["fault"]
+    assert fault["part"] == "mission" and fault["error"].startswith("Injected"), r.describe()
+    assert [e["where"] for e in r.events if e["event"] == "fault"] == [fault["where"]], r.describe()
+    assert "unexpected error" in r.output and "Traceback" not in r.output, r.describe()
+    assert r.end_actions() == {"alpha": "rtl"}, r.describe()
+    assert r.vehicle("alpha")["end_state"] == "landed at home", r.describe()
+    assert within(HOME_M, r.landings["alpha"]), r.describe()
 
 
 @pytest.mark.scenario("kill")
