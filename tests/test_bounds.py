@@ -16,9 +16,9 @@ from hypothesis import strategies as st
 
 from swarmctl.bounds import json_depth, read_limited, real, writable_file, writable_folder
 from swarmctl.errors import InputError
-from swarmctl.geo.areas import load_area
 from swarmctl.geo.buildings import FEET, BuildingRule, load_buildings, parse_height
 from swarmctl.geo.grid import make_grid
+from swarmctl.geo.load import load_area
 from swarmctl.geo.readers import lonlat_ring
 from swarmctl.policy.registry import make_policy
 from swarmctl.world.config import WorldConfig

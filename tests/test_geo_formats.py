@@ -9,8 +9,9 @@ import pytest
 import shapely
 
 from swarmctl.errors import InputError
-from swarmctl.geo.areas import Area, Circle, load_area
+from swarmctl.geo.areas import Area, Circle
 from swarmctl.geo.grid import make_grid
+from swarmctl.geo.load import load_area
 from swarmctl.geo.plan_io import plan_dict, read_plan, write_plan
 from tests.geo_helpers import DATA, PROJ, blocked_cells, feature, to_lonlat, write_geojson
 

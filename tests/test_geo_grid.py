@@ -9,8 +9,9 @@ import pytest
 import shapely
 
 from swarmctl.errors import InputError
-from swarmctl.geo.areas import Area, Circle, load_area
+from swarmctl.geo.areas import Area, Circle
 from swarmctl.geo.grid import GeoGrid, make_grid
+from swarmctl.geo.load import load_area
 from tests.geo_helpers import LAT0, LON0, PROJ, blocked_cells, feature, to_lonlat, write_geojson
 
 SQUARE_60 = shapely.box(0, 0, 60, 60)  # metres: a 6 x 6 grid of 10 m cells

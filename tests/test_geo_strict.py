@@ -18,8 +18,8 @@ from hypothesis import strategies as st
 
 from swarmctl.cli import main
 from swarmctl.errors import InputError
-from swarmctl.geo.areas import load_area
 from swarmctl.geo.grid import make_grid
+from swarmctl.geo.load import load_area
 from swarmctl.geo.readers import lonlat_ring
 from tests.geo_helpers import PROJ, blocked_cells, feature, to_lonlat, write_geojson
 

@@ -15,6 +15,7 @@ from swarmctl.mavlink.autopilots.base import autopilot_for_heartbeat, autopilot_
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT, PX4, px4_decode, px4_encode
 from swarmctl.mavlink.autopilots.px4 import PX4Vehicle
 from swarmctl.mavlink.codec import MAV_RESULT_NAMES
+from swarmctl.mavlink.connect import driver_of
 from swarmctl.sim.autopilot import MockAutopilot
 from swarmctl.sim.personality import PERSONALITIES, personality_named
 
@@ -78,8 +79,8 @@ def test_the_registry_finds_a_description_by_heartbeat_and_by_mission_name():
 
 
 def test_each_description_names_its_driver_and_the_driver_its_description():
-    assert ARDUPILOT.driver is ArduPilotVehicle and ArduPilotVehicle.autopilot_info is ARDUPILOT
-    assert PX4.driver is PX4Vehicle and PX4Vehicle.autopilot_info is PX4
+    assert driver_of(ARDUPILOT) is ArduPilotVehicle and ArduPilotVehicle.autopilot_info is ARDUPILOT
+    assert driver_of(PX4) is PX4Vehicle and PX4Vehicle.autopilot_info is PX4
     assert not ARDUPILOT.own_connection and PX4.own_connection  # PX4: MAVSDK opens the connection
 
 

@@ -10,6 +10,8 @@ An `Area` is the polygon(s) to search, in WGS84 lon/lat, plus its no-fly zones. 
   whose ``<name>`` starts with "no-fly"/"nofly" (any case) is a no-fly zone.
 - QGroundControl .plan: see `swarmctl.geo.plan_io.read_plan`.
 
+`swarmctl.geo.load.load_area` reads any of them, the reader picked by the file's suffix.
+
 Polygon holes are no-fly zones. Invalid (self-intersecting) polygons are repaired with
 ``shapely.make_valid`` and reported in `Area.warnings`.
 """
@@ -38,7 +40,6 @@ from swarmctl.geo.readers import (
     show_json,
 )
 
-AREA_SUFFIXES = (".geojson", ".json", ".kml", ".plan")
 NOFLY_KEYS = ("nofly", "no_fly", "no-fly")
 BUILDING_KEYS = ("building", "height", "building:levels", "stories", "STORIES", "BLDG_ID")
 _NOFLY_NAME = re.compile(r"^\s*no[-_ ]?fly", re.IGNORECASE)
@@ -123,23 +124,6 @@ def build_area(
         )
     nofly = repair(nofly_parts, path, warnings)
     return Area(geometry, nofly, list(circles or []), path.name, dict(sources or {}), warnings)
-
-
-def load_area(path: str | Path) -> Area:
-    """Read a search area from a .geojson/.json, .kml or QGroundControl .plan file."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in AREA_SUFFIXES:
-        raise InputError(
-            f"{path}: unknown file type {suffix or '(no extension)'!r}; give a " + ", ".join(AREA_SUFFIXES) + " file"
-        )
-    if suffix == ".kml":
-        return read_kml(path)
-    if suffix == ".plan":
-        from swarmctl.geo.plan_io import read_plan
-
-        return read_plan(path)
-    return read_geojson_area(path)
 
 
 _NOFLY_TRUE = ("true", "yes", "1")

@@ -116,10 +116,10 @@ def plan_command(
     if not margin < altitude:
         raise InputError(f"--margin {margin:g}: the safety margin must be below --altitude ({altitude:g} m)")
     new_recording_folder(out_dir, "--out")  # a recording's grid.npz is its own: never replaced
-    from swarmctl.geo.areas import load_area
     from swarmctl.geo.buildings import BuildingRule, load_buildings
     from swarmctl.geo.export import write_grid_geojson
     from swarmctl.geo.grid import make_grid
+    from swarmctl.geo.load import load_area
     from swarmctl.geo.plan_io import write_plan
     from swarmctl.geo.preview import render_preview
 

@@ -49,20 +49,35 @@ Deliveries wait in each receiver's inbox (a stacked ideal bus: in the bus) until
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from collections import Counter
+from typing import Any, Protocol
 
 import numpy as np
 
 from swarmctl.knowledge.codec import KIND_NAMES, PT_DELTA, PT_DETECTION, KnowledgeCodec, Message
-from swarmctl.knowledge.model import Delta, Detection
+from swarmctl.knowledge.model import Delta, Detection, Knowledge
 from swarmctl.knowledge.stack import KnowledgeStack
 from swarmctl.knowledge.trust import KnowledgeTrust
 from swarmctl.world.channel import Channel
 
-if TYPE_CHECKING:
-    from swarmctl.knowledge.exchange import KnowledgeExchange
-
 IDEAL_KINDS = frozenset({PT_DELTA, PT_DETECTION})  # what an ideal bus delivers (see the module docstring)
+
+
+class Member(Protocol):
+    """What the bus uses of a member: a swarmctl.knowledge.exchange.KnowledgeExchange (described here, not
+    imported: that module imports this one)."""
+
+    knowledge: Knowledge
+    codec: KnowledgeCodec
+    trust: KnowledgeTrust
+    stats: Counter[str]
+    vehicle_id: int
+    system_id: int
+    _now: int  # the member's latest step
+
+    def deliver(self, message: Message, kind: str, size: int) -> None: ...
+
+    def poll(self, timeout: float = 0.0) -> int: ...
 
 
 class KnowledgeBus:
@@ -72,7 +87,7 @@ class KnowledgeBus:
         self.channel = channel or Channel("ideal")
         self.seed = int(seed)
         self.stack = stack
-        self.members: list[KnowledgeExchange] = []
+        self.members: list[Member] = []
         self._batch = _Batch(stack) if stack is not None else None
         self._codec: KnowledgeCodec | None = None
         self.trust = KnowledgeTrust()  # replaced by the first member's settings (join)
@@ -86,7 +101,7 @@ class KnowledgeBus:
     def ideal(self) -> bool:
         return self.channel.kind == "ideal"
 
-    def join(self, member: KnowledgeExchange) -> None:
+    def join(self, member: Member) -> None:
         """Add an exchange (its codec names the mission and grid every member must share)."""
         codec = member.codec
         if self._codec is None:
@@ -104,13 +119,13 @@ class KnowledgeBus:
         if self._batch is not None:
             self._batch.joined(self.members)
 
-    def leave(self, member: KnowledgeExchange) -> None:
+    def leave(self, member: Member) -> None:
         if member in self.members:
             self.members.remove(member)
             if self._batch is not None:
                 self._batch.joined(self.members)
 
-    def collect(self, member: KnowledgeExchange) -> int:
+    def collect(self, member: Member) -> int:
         """Merge what the bus holds for all members (a stacked ideal bus; see the module docstring) and
         return how many messages `member` received since its last collect (0 without a stack)."""
         if self._batch is None:
@@ -119,7 +134,7 @@ class KnowledgeBus:
         return self._batch.handled.pop(member, 0)
 
     def publish(
-        self, sender: KnowledgeExchange, payload_type: int, payload: bytes, size: int, message: Message | None = None
+        self, sender: Member, payload_type: int, payload: bytes, size: int, message: Message | None = None
     ) -> int:
         """One TUNNEL payload of `sender` (its frame `size` bytes long) to every other member, lost as the
         channel says; returns how many members it reached. `message`: what the payload decodes to, when
@@ -154,7 +169,7 @@ class KnowledgeBus:
             reached += 1
         return reached
 
-    def _lost(self, tx: KnowledgeExchange, rx: KnowledgeExchange, tx_cell: tuple[int, int] | None) -> bool:
+    def _lost(self, tx: Member, rx: Member, tx_cell: tuple[int, int] | None) -> bool:
         if self.ideal:
             return False
         own = rx.knowledge.own_position
@@ -197,23 +212,23 @@ class _Batch:
     def __init__(self, stack: KnowledgeStack):
         self.stack = stack
         self.stacked = True  # every member's knowledge is a row of the stack
-        self.rows: dict[KnowledgeExchange, int] = {}
+        self.rows: dict[Member, int] = {}
         self.mask = np.zeros(stack.rows, dtype=bool)  # the members' rows (a new array at each change)
         self.messages: list[Delta | Detection] = []
         self.masks: list[np.ndarray] = []
         self.senders: list[int] = []  # the senders' rows
         self.kinds: list[str] = []
         self.sizes: list[int] = []
-        self.handled: dict[KnowledgeExchange, int] = {}
+        self.handled: dict[Member, int] = {}
 
-    def joined(self, members: list[KnowledgeExchange]) -> None:
+    def joined(self, members: list[Member]) -> None:
         """The membership changed: what was published before goes to the members of then."""
         self.stacked = all(m.knowledge._stack is self.stack for m in members)
         self.rows = {m: m.knowledge._row for m in members if m.knowledge._stack is self.stack}
         self.mask = np.zeros(self.stack.rows, dtype=bool)
         self.mask[list(self.rows.values())] = True
 
-    def add(self, sender: KnowledgeExchange, message: Delta | Detection, kind: str, size: int) -> int:
+    def add(self, sender: Member, message: Delta | Detection, kind: str, size: int) -> int:
         self.messages.append(message)
         self.masks.append(self.mask)
         self.senders.append(sender.knowledge._row)

@@ -4,8 +4,8 @@
 vehicles in arrays; this is the batch-of-one form): which cells are explored, their value phi and
 obstacle flag where explored, where each vehicle was last known to be, and the target cells reported
 by detections. Arrays are indexed [x, y]. Its state is one row of a
-swarmctl.knowledge.stack.KnowledgeStack: a stack of its own, or the one the agents of a ground-mode
-process share (merged for all of them at once).
+swarmctl.knowledge.arrays.StackArrays: arrays of its own, or the swarmctl.knowledge.stack.KnowledgeStack
+the agents of a ground-mode process share (merged for all of them at once).
 
 phi is stored quantised to uint8 (`PHI_LEVELS` = 255 steps over [0, 1]) because that is how the
 MAVLink codec carries it: a vehicle's own observations and those it received agree bit for bit.
@@ -30,7 +30,7 @@ from typing import Any, Self, TypeGuard
 import numpy as np
 import numpy.typing as npt
 
-from swarmctl.knowledge.stack import MAX_IDS, NEVER, UNKNOWN, KnowledgeStack, key_cells, position_key, split_key
+from swarmctl.knowledge.arrays import MAX_IDS, NEVER, UNKNOWN, StackArrays, key_cells, position_key, split_key
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
 from swarmctl.world.scenario import fov_offsets, value_map
@@ -279,20 +279,18 @@ class TargetTable(MutableMapping[tuple[int, int], int]):
 class Knowledge:
     """One vehicle's view of a width x height grid (see the module docstring for merge rules).
 
-    Its state lives in one row of a swarmctl.knowledge.stack.KnowledgeStack: its own stack of one, or
-    `stack=(stack, row)`, a row of the stack the agents of a process share (KnowledgeStack.knowledge).
+    Its state lives in one row of a swarmctl.knowledge.arrays.StackArrays: its own arrays of one row, or
+    `stack=(stack, row)`, a row of the KnowledgeStack the agents of a process share (KnowledgeStack.knowledge).
     `explored`, `phi_q` and `obstacle` are views of that row, `positions` and `targets` mappings onto it."""
 
-    def __init__(
-        self, width: int, height: int, vehicle_id: int = 0, *, stack: tuple[KnowledgeStack, int] | None = None
-    ):
+    def __init__(self, width: int, height: int, vehicle_id: int = 0, *, stack: tuple[StackArrays, int] | None = None):
         if width < 1 or height < 1:
             raise ValueError(f"grid {width} x {height} must have at least one cell")
         self.width, self.height, self.vehicle_id = int(width), int(height), int(vehicle_id)
         if self.vehicle_id < 0:
             raise ValueError(f"vehicle id {vehicle_id} must not be negative")
         if stack is None:
-            stack = (KnowledgeStack(1, self.width, self.height, ids=max(MAX_IDS, self.vehicle_id + 1)), 0)
+            stack = (StackArrays(1, self.width, self.height, ids=max(MAX_IDS, self.vehicle_id + 1)), 0)
         self._stack, self._row = stack
         st, row = stack
         if (st.width, st.height) != (self.width, self.height) or self.vehicle_id >= st.ids:
@@ -467,7 +465,7 @@ class Knowledge:
         return self.copy().merge(other)
 
     def copy(self) -> Knowledge:
-        st = KnowledgeStack(1, self.width, self.height, ids=self._position.size)
+        st = StackArrays(1, self.width, self.height, ids=self._position.size)
         k = Knowledge(self.width, self.height, self.vehicle_id, stack=(st, 0))
         for name in ("explored", "phi_q", "obstacle", "_position", "_target_step", "_pending"):
             getattr(k, name)[...] = getattr(self, name)

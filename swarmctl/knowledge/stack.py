@@ -4,13 +4,14 @@
     kn = stack.knowledge(3)                      # agent row 3: a Knowledge whose arrays are views
     stack.merge_batch(messages, receivers)       # deltas and detections into every receiver, vectorised
 
-Every `swarmctl.knowledge.model.Knowledge` keeps its state in one row of a stack: explored, phi_q and
+Every `swarmctl.knowledge.model.Knowledge` keeps its state in one row of a stack's arrays
+(swarmctl.knowledge.arrays.StackArrays, which a KnowledgeStack is): explored, phi_q and
 obstacle (N, W, H), the positions it knows (N, 256: one column per vehicle id, each an int64 key that
 orders like Position.order(); -1 unknown), the earliest step of each target cell it knows (N, W, H;
 NEVER where none) and the cells it sensed itself and has not published yet (pending). The stack also
 holds each row's exchange bookkeeping for the push rule (learned_at, noted: KnowledgeExchange), so one
 round's step of every agent of a process is a few array operations (swarmctl.knowledge.stepping). A
-Knowledge made on its own holds a stack of one row; the agents of a ground-mode process
+Knowledge made on its own holds arrays of one row; the agents of a ground-mode process
 (swarmctl.knowledge.bus with a stack) hold one row each of the same stack, so what the bus delivers to
 all of them is merged in a few numpy operations instead of one Python merge per agent and message.
 The merges are the same join (logical or, max, newest position, earliest target step), so the result
@@ -19,68 +20,33 @@ is exactly that of merging each message into each receiver one by one, in any or
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:
-    from swarmctl.knowledge.model import Delta, Detection, Knowledge
+from swarmctl.knowledge.arrays import (
+    MAX_IDS,
+    MAX_SIDE,
+    NEVER,
+    UNKNOWN,
+    StackArrays,
+    key_cells,
+    position_key,
+    split_key,
+)
+from swarmctl.knowledge.model import Delta, Detection, Knowledge
 
-MAX_IDS = 256  # vehicle ids 0..255 (the codec's u8 sender)
-UNKNOWN = -1  # a position key: no position known
-NEVER = np.iinfo(np.int64).max  # a target step: no target known there
-
-
-MAX_SIDE = 1 << 12  # cells per side a position key holds
-_XY = 0xFFF
-
-
-def position_key(step: int, cell: tuple[int, int], on_target: bool) -> int:
-    """An int64 that orders like Position.order(): step (< 2^38), then x, then y (< 4096), then
-    on_target."""
-    if not 0 <= int(step) < 1 << 38:
-        raise ValueError(f"step {step} must be 0..2^38 - 1")
-    return (int(step) << 25) | (int(cell[0]) << 13) | (int(cell[1]) << 1) | int(bool(on_target))
+# the keys and constants, defined with the arrays (swarmctl.knowledge.arrays), importable from here too
+__all__ = ["MAX_IDS", "MAX_SIDE", "NEVER", "UNKNOWN", "KnowledgeStack", "key_cells", "position_key", "split_key"]
 
 
-def split_key(key: int) -> tuple[int, tuple[int, int], bool]:
-    """The (step, cell, on_target) of a position key."""
-    key = int(key)
-    return key >> 25, ((key >> 13) & _XY, (key >> 1) & _XY), bool(key & 1)
-
-
-def key_cells(keys: np.ndarray) -> np.ndarray:
-    """(..., 2) cells of an array of position keys (-1, -1 where unknown)."""
-    cells = np.stack([(keys >> 13) & _XY, (keys >> 1) & _XY], axis=-1)
-    return np.where((keys >= 0)[..., None], cells, -1)
-
-
-class KnowledgeStack:
+class KnowledgeStack(StackArrays):
     """The state of `rows` agents' knowledge of a width x height grid (see the module docstring)."""
 
     def __init__(self, rows: int, width: int, height: int, ids: int = MAX_IDS):
-        if rows < 1:
-            raise ValueError("a knowledge stack holds at least one agent")
-        if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
-            raise ValueError(f"grid {width} x {height} must have 1..{MAX_SIDE} cells a side")
-        self.rows, self.width, self.height, self.ids = int(rows), int(width), int(height), int(ids)
-        shape = (self.rows, self.width, self.height)
-        self.explored = np.zeros(shape, dtype=bool)
-        self.phi_q = np.zeros(shape, dtype=np.uint8)  # 0 where unexplored
-        self.obstacle = np.zeros(shape, dtype=bool)  # False where unexplored
-        self.position = np.full((self.rows, self.ids), UNKNOWN, dtype=np.int64)
-        self.target_step = np.full(shape, NEVER, dtype=np.int64)
-        self.pending = np.zeros(shape, dtype=bool)  # own finds not yet published (Knowledge.take_delta)
-        # the push rule's bookkeeping of each row's exchange (swarmctl.knowledge.exchange): the step at
-        # which each cell became known (NEVER: not yet), and where that was noted
-        self.learned_at = np.full(shape, NEVER, dtype=np.int64)
-        self.noted = np.zeros(shape, dtype=bool)
+        super().__init__(rows, width, height, ids)
         self._views: dict[int, Knowledge] = {}
 
     def knowledge(self, row: int, vehicle_id: int | None = None) -> Knowledge:
         """The Knowledge of agent `row` (vehicle id `row` unless given); one per row."""
-        from swarmctl.knowledge.model import Knowledge
-
         if not 0 <= row < self.rows:
             raise ValueError(f"row {row} is outside a stack of {self.rows}")
         if row in self._views:
@@ -92,8 +58,6 @@ class KnowledgeStack:
     def merge_batch(self, messages: list[Delta | Detection], receivers: np.ndarray) -> None:
         """Merge each message i into the rows where receivers[i] (M, rows) is True, all at once: the
         same result as Knowledge.merge of each message into each of its receivers."""
-        from swarmctl.knowledge.model import Delta
-
         if not messages:
             return
         receivers = np.asarray(receivers, dtype=bool).reshape(len(messages), self.rows)

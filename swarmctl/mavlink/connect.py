@@ -12,6 +12,7 @@ goes to MAVSDK at once and MAVSDK's autopilot type is checked instead.
 from __future__ import annotations
 
 import asyncio
+import importlib
 import logging
 import time
 from collections import Counter
@@ -31,6 +32,12 @@ log = logging.getLogger(__name__)
 class AutopilotMismatch(InputError):
     """What a vehicle reports about its autopilot does not fit the mission: its `autopilot` key says
     another firmware, or a PX4 shares its connection with other vehicles."""
+
+
+def driver_of(autopilot: Autopilot) -> type[Vehicle]:
+    """The Vehicle class that flies `autopilot` (its `driver_path`, imported on first use)."""
+    module, _, cls = autopilot.driver_path.partition(":")
+    return getattr(importlib.import_module(module), cls)
 
 
 class Connector:
@@ -111,12 +118,14 @@ class Connector:
         if self._users[key] > 1:
             raise AutopilotMismatch(
                 f"{self.source}: {name} (system id {sysid}) reports a {found.label} autopilot, which swarmctl flies "
-                f"on a connection of its own ({found.driver.__name__}), but {endpoint} carries {self._users[key]} "
+                f"on a connection of its own ({driver_of(found).__name__}), but {endpoint} carries {self._users[key]} "
                 f"vehicles; give {name} its own connection (e.g. its own UDP port)"
             )
         del self.links[key]
         await link.close()
-        log.info("%s: a %s autopilot; its connection %s goes to %s", name, found.label, endpoint, found.driver.__name__)
+        log.info(
+            "%s: a %s autopilot; its connection %s goes to %s", name, found.label, endpoint, driver_of(found).__name__
+        )
         return await self._start(found, endpoint, sysid, name, deadline)
 
     async def _link(self, endpoint: Endpoint) -> MavlinkLink:
@@ -146,7 +155,7 @@ class Connector:
     ) -> Vehicle:
         """Build autopilot's driver (on `link`, or on the endpoint for drivers with their own connection)
         and connect it within the time left; it is closed again if that fails."""
-        driver: Callable[..., Vehicle] = autopilot.driver  # each firmware's driver takes its own arguments
+        driver: Callable[..., Vehicle] = driver_of(autopilot)  # each firmware's driver takes its own arguments
         if autopilot.own_connection:
             if self.signing_key is not None and not autopilot.signs_link:
                 log.warning("%s: %s signing is %s", name, autopilot.label, autopilot.signing)

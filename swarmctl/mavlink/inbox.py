@@ -15,10 +15,9 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-if TYPE_CHECKING:
-    from swarmctl.mavlink.network import MavlinkLink
+from swarmctl.mavlink.codec import Endpoint
 
 log = logging.getLogger("swarmctl.mavlink.network")  # the links' log: what a user filters on
 
@@ -31,6 +30,28 @@ READ_BATCH = 64  # datagrams a UDP link reads at most in one drain before the lo
 # largest MAVLink 2 frames (280 bytes) are 17,920 bytes: an autopilot's traffic stays under both.
 LINK_DRAIN_BYTES = 32768
 DRAIN_BYTES = 131072
+
+
+class Link(Protocol):
+    """What the inbox uses of a link: a swarmctl.mavlink.network.MavlinkLink (described here, not imported:
+    that module imports this one)."""
+
+    @property
+    def endpoint(self) -> Endpoint: ...
+
+    @property
+    def read_bytes(self) -> int: ...  # what the last datagram read cost to parse
+
+    @property
+    def _batch_listeners(self) -> tuple[Callable[[list], None], ...]: ...
+
+    def _read_datagram(self) -> list | None: ...
+
+    def _deliver(self, msgs: list) -> list: ...
+
+    def _check_heartbeats(self, now: float) -> None: ...
+
+    def remove_listener(self, callback: Callable[[list], None]) -> None: ...
 
 
 class Inbox:
@@ -49,16 +70,16 @@ class Inbox:
 
     def __init__(self, loop: asyncio.AbstractEventLoop):
         self._loop = weakref.ref(loop)  # not a strong one: the loop is the key of its inbox in _inboxes
-        self._items: list[tuple[MavlinkLink, list]] = []
+        self._items: list[tuple[Link, list]] = []
         self._lock = threading.Lock()
         self._scheduled = False
-        self._links: dict[MavlinkLink, None] = {}  # open links, in the order they were opened
+        self._links: dict[Link, None] = {}  # open links, in the order they were opened
         self._watchdog: asyncio.TimerHandle | None = None
         self._sockets: selectors.DefaultSelector | None = None  # the UDP links' sockets (data: the link)
         self._watching = False  # the loop watches self._sockets
-        self._check_failed: weakref.WeakSet[MavlinkLink] = weakref.WeakSet()  # links whose watchdog check failed
+        self._check_failed: weakref.WeakSet[Link] = weakref.WeakSet()  # links whose watchdog check failed
 
-    def read(self, link: MavlinkLink, sock: socket.socket) -> bool:
+    def read(self, link: Link, sock: socket.socket) -> bool:
         """Read `sock` (a UDP link's) at each drain; False where this platform's selectors cannot be
         watched by the loop (the link then keeps a reader thread)."""
         if self._sockets is None:
@@ -97,7 +118,7 @@ class Inbox:
         self._unwatch()
         self.put(None, [], on_loop=True)
 
-    def put(self, link: MavlinkLink | None, msgs: list, on_loop: bool = False) -> None:
+    def put(self, link: Link | None, msgs: list, on_loop: bool = False) -> None:
         """From a reader thread (or, with on_loop, from the loop's own thread; link None: only a drain
         scheduled). RuntimeError when the loop is closed."""
         with self._lock:
@@ -129,7 +150,7 @@ class Inbox:
             items, self._items = self._items, []
             self._scheduled = False
         items += read
-        batches: dict[MavlinkLink, list] = {}
+        batches: dict[Link, list] = {}
         for link, msgs in items:
             if link in batches:
                 batches[link] += msgs
@@ -148,16 +169,16 @@ class Inbox:
             for link in {**self._links, **batches}:
                 link.remove_listener(cb)
 
-    def _read_ready(self) -> list[tuple[MavlinkLink, list]]:
+    def _read_ready(self) -> list[tuple[Link, list]]:
         """The ready UDP sockets' datagrams, parsed, per link in their order: in passes of one datagram
         from each socket the selector finds ready, until none is, so no read comes back empty (a failed
         recvfrom cost more than the datagram's parse in a 50-vehicle flight); at most READ_BATCH passes,
         LINK_DRAIN_BYTES parsed per link and DRAIN_BYTES in all, so a flooded link cannot hold up the loop
         (the rest waits for the next drain)."""
         assert self._sockets is not None
-        got: dict[MavlinkLink, list] = {}
-        stopped: set[MavlinkLink] = set()  # closing, ready with nothing to read, or had its share: not read again
-        spent: dict[MavlinkLink, int] = {}  # bytes parsed per link
+        got: dict[Link, list] = {}
+        stopped: set[Link] = set()  # closing, ready with nothing to read, or had its share: not read again
+        spent: dict[Link, int] = {}  # bytes parsed per link
         left = DRAIN_BYTES
         select = self._sockets.select
         for _ in range(READ_BATCH):
@@ -185,12 +206,12 @@ class Inbox:
                     return list(got.items())
         return list(got.items())
 
-    def watch(self, link: MavlinkLink) -> None:
+    def watch(self, link: Link) -> None:
         self._links[link] = None
         if self._watchdog is None:
             self._watchdog = asyncio.get_running_loop().call_later(WATCHDOG_S, self._check)
 
-    def unwatch(self, link: MavlinkLink) -> None:
+    def unwatch(self, link: Link) -> None:
         self._links.pop(link, None)
         if not self._links and self._watchdog is not None:
             self._watchdog.cancel()

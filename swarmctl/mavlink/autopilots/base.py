@@ -5,7 +5,7 @@ An `Autopilot` describes a firmware, not a vehicle: its MAV_AUTOPILOT id, its fl
 (HEARTBEAT.custom_mode numbers), which modes mean a pilot has taken over, how long a mode report must
 last before it counts, how it refuses an arm that is not ready yet, which parameters give a vehicle's
 speeds (and so its timeouts), what signing means on the path swarmctl flies it by, and the driver
-class that flies it. The controller, the connector and the mock
+class that flies it (by name: the connector imports it). The controller, the connector and the mock
 autopilot ask these questions instead of comparing autopilot names. Nothing here does I/O or imports
 pymavlink or MAVSDK.
 """
@@ -15,13 +15,10 @@ from __future__ import annotations
 import abc
 import importlib
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, ClassVar, TypeVar
+from typing import ClassVar, TypeVar
 
 from swarmctl.errors import InputError
 from swarmctl.mavlink.limits import FlightLimits
-
-if TYPE_CHECKING:  # pragma: no cover
-    from swarmctl.mavlink.vehicle import Vehicle
 
 _BY_ID: dict[int, Autopilot] = {}
 _BY_NAME: dict[str, Autopilot] = {}
@@ -38,7 +35,7 @@ class Autopilot(abc.ABC):
     signs_link: ClassVar[bool]  # the mission's signing key signs this vehicle's MAVLink
     signing: ClassVar[str]  # what signing means on the path swarmctl flies it by
     arm_refusal: ClassVar[str]  # the MAV_RESULT the autopilot answers an arm with while it is not ready
-    driver_path: ClassVar[str]  # "module:Class" of the Vehicle driver
+    driver_path: ClassVar[str]  # "module:Class" of the Vehicle driver (swarmctl.mavlink.connect.driver_of)
     # the parameters the driver reads at preflight for `flight_limits` (empty: none can be read, so the
     # firmware's defaults give every vehicle's timeouts)
     limit_parameters: ClassVar[tuple[str, ...]] = ()
@@ -109,12 +106,6 @@ class Autopilot(abc.ABC):
     def retries_arm(self, result: str) -> bool:
         """True when an arm refused with this MAV_RESULT name means "not ready yet, try again"."""
         return result in (self.arm_refusal, "TEMPORARILY_REJECTED")
-
-    @property
-    def driver(self) -> type[Vehicle]:
-        """The Vehicle class that flies this autopilot (imported on first use)."""
-        module, _, cls = self.driver_path.partition(":")
-        return getattr(importlib.import_module(module), cls)
 
     def __repr__(self) -> str:
         return f"<autopilot {self.name} (MAV_AUTOPILOT {self.mav_autopilot})>"
