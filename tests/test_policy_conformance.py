@@ -14,7 +14,7 @@ from swarmctl.knowledge.model import Knowledge, Position, beliefs_from_knowledge
 from swarmctl.learn.ddql import TrainConfig, train
 from swarmctl.policy.registry import make_policy
 from swarmctl.world import SearchEnv, WorldConfig
-from swarmctl.world.beliefs import Beliefs
+from swarmctl.world.beliefs import SCALES_VARIANT, Beliefs
 from swarmctl.world.observe import observe
 
 # sigma2 small: phi is exactly 1 on targets and 0 elsewhere, so the field's quantised phi equals the
@@ -110,6 +110,8 @@ def test_both_builders_give_the_same_beliefs_observations_and_moves(model, chann
             assert np.array_equal(getattr(one, name), getattr(field, name)), name
         for remove_taken in (False, True):
             assert np.array_equal(observe(one, remove_taken), observe(field, remove_taken))
+        scales = {"variant": SCALES_VARIANT, "window": 11}  # the crops at 1, 3 and 9 cells a pixel
+        assert np.array_equal(observe(one.with_settings(**scales)), observe(field.with_settings(**scales)))
         for spec in specs(model):
             a, c = make_policy(spec), make_policy(spec)
             a.reset(one, 7)
@@ -148,6 +150,7 @@ def test_beliefs_hold_no_truth():
         "me",
         "episodes",
         "step",
+        "step_limit",
     }
     b = played("ideal", 3, 2).beliefs()
     derived = {k for k, v in vars(Beliefs).items() if isinstance(v, cached_property)}  # views of the fields

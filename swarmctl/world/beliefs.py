@@ -37,7 +37,9 @@ Crew = tuple[Sequence[int], bool, Sequence[Sequence[int]]]
 # a grid-sized field given to Beliefs: an array, a callable computing it when first read, or None
 MapSource = npt.ArrayLike | Callable[[], npt.ArrayLike] | None
 GLOBAL_LOCAL_VARIANT = "global-local-v1"  # the paper's window + the whole map pooled (world.observe_global)
-VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7}  # observation channels of each variant
+SCALES_VARIANT = "scales-v1"  # crops at 1, 3 and 9 cells a pixel: a fixed metric scale (world.observe_scales)
+# observation channels of each variant
+VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7, SCALES_VARIANT: 24}
 
 
 @dataclass(frozen=True)
@@ -75,13 +77,25 @@ class Beliefs:
     where decider u believes vehicle n is (-1, -1 when unknown; its own row is its own cell); hovering
     (B, U, N) bool, u believes n hovers on a target (its own entry: it hovers); me (B, U) int, the
     decider's own index among the N vehicles; episodes (B,) int, the batches' episode ids (policy draws
-    are keyed by them and by `step`).
+    are keyed by them and by `step`); step_limit, the step the search ends at when the deciders know it
+    (None: not known).
 
     The grid-sized fields (phi_hat, obstacles, targets) and `value` (the value channel without taken
     targets removed, computed from the other fields when not given) may be zero-argument callables:
     the simulator gives them so, and each is computed once, when a policy first reads it."""
 
-    FIELDS = ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me", "episodes", "step")
+    FIELDS = (
+        "explored",
+        "phi_hat",
+        "obstacles",
+        "targets",
+        "positions",
+        "hovering",
+        "me",
+        "episodes",
+        "step",
+        "step_limit",
+    )
     _MAPS = {"phi_hat": np.float32, "obstacles": bool, "targets": bool, "value": np.float32}
 
     def __init__(
@@ -97,6 +111,7 @@ class Beliefs:
         step: int = 0,
         settings: ObservationSettings | None = None,
         value: MapSource = None,
+        step_limit: int | None = None,
     ):
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
@@ -110,6 +125,9 @@ class Beliefs:
         self.me = np.asarray(me, dtype=np.int64)
         self.episodes = np.asarray(episodes, dtype=np.int64).reshape(b)
         self.step = int(step)
+        self.step_limit = None if step_limit is None else int(step_limit)
+        if self.step_limit is not None and self.step_limit < 1:
+            raise ValueError(f"beliefs: step limit {self.step_limit} is not a positive number of steps")
         self.settings = settings or ObservationSettings()
         n = self.positions.shape[2] if self.positions.ndim == 4 else -1
         for name, arr, shape in (
@@ -364,4 +382,5 @@ class Beliefs:
             self.step,
             self.settings,
             part("value"),
+            self.step_limit,
         )

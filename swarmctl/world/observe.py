@@ -17,7 +17,7 @@ from functools import lru_cache
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
-from swarmctl.world.beliefs import PAPER_VARIANT, SMALL, Beliefs, Crew
+from swarmctl.world.beliefs import PAPER_VARIANT, SCALES_VARIANT, SMALL, Beliefs, Crew
 from swarmctl.world.moves import block_starts
 
 FEW = 16  # windows up to which the crop is one flat gather; beyond, a gather of whole rows is faster
@@ -28,9 +28,14 @@ DENSE = 64  # a vehicle channel counted cell by cell (bincount) once its vehicle
 
 def observe(beliefs: Beliefs, remove_taken: bool = False) -> np.ndarray:
     """(B, U, C, F, F) float32 observations of every decider (F = beliefs.settings.window; C = 3 for the
-    paper's variant, 7 for the global-local one: swarmctl.world.observe_global); with remove_taken the
-    targets others sit on leave the value channel (swarmctl.world.taken)."""
+    paper's variant, 7 for the global-local one: swarmctl.world.observe_global, 24 for the scales one:
+    swarmctl.world.observe_scales); with remove_taken the targets others sit on leave the value channel
+    (swarmctl.world.taken; the scales variant has none)."""
     s = beliefs.settings
+    if s.variant == SCALES_VARIANT:
+        from swarmctl.world.observe_scales import observe_scales
+
+        return observe_scales(beliefs)
     if s.variant != PAPER_VARIANT:
         from swarmctl.world.observe_global import observe_global_local
 
