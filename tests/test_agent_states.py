@@ -21,6 +21,8 @@ class FakeVehicle:
     mode: str = "GUIDED"
     battery_remaining: int | None = 80
     autopilot_info: object = ARDUPILOT
+    armed: bool = True
+    position: object = None
 
 
 def agent(state: State, **vehicle) -> Agent:
@@ -33,6 +35,7 @@ def agent(state: State, **vehicle) -> Agent:
         False,
         None,
     )
+    a.lost_at, a.status = None, None
     return a
 
 
@@ -46,7 +49,8 @@ def test_the_machine_has_the_documented_transitions_and_nothing_else():
         State.FAILED,
         State.ENDED,
     }
-    assert TRANSITIONS[State.LOST] == {State.REJOIN, State.ENDED}  # a lost vehicle is never failed or hovering
+    # a lost vehicle is never failed or hovering; back in a pilot's mode it is the pilot's
+    assert TRANSITIONS[State.LOST] == {State.REJOIN, State.OVERRIDE, State.ENDED}
     assert TRANSITIONS[State.ENDED] == set()
     for s in (State.OVERRIDE, State.LOW_BATTERY):  # once the pilot or the battery has it, only the end
         assert TRANSITIONS[s] == {State.ENDED}
@@ -67,6 +71,8 @@ def test_a_transition_the_machine_lacks_is_refused_and_staying_is_not_a_change()
         (State.HOVER, dict(lost=True), State.LOST),
         (State.REJOIN, dict(lost=True), State.LOST),
         (State.LOST, dict(lost=False), State.REJOIN),
+        (State.LOST, dict(lost=False, mode="RTL"), State.REJOIN),  # its own failsafe's mode: taken back
+        (State.LOST, dict(lost=False, mode="LOITER"), State.OVERRIDE),  # a pilot chose it meanwhile
         (State.LOST, dict(lost=True), None),
         (State.SEARCH, dict(mode="LOITER"), State.OVERRIDE),  # ArduPilot: anything but GUIDED is the pilot's
         (State.SEARCH, dict(battery_remaining=10), State.LOW_BATTERY),

@@ -302,3 +302,54 @@ def test_a_preflight_note_repeated_soon_is_shown_once():
         launch.note(a, text)
     assert [e["text"] for e in swarm.rec.named("preflight")] == ["waiting for GPS", "ready"]
     assert a.status == "ready" and len(shown) == 2
+
+
+# --- a link that comes back ------------------------------------------------------------------------------
+
+
+def back_from_a_loss(mode: str) -> tuple[Agent, tuple]:
+    from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
+
+    a = agent(0, State.SEARCH, (2, 2))
+    a.vehicle.autopilot_info = ARDUPILOT
+    a.vehicle.lost = True
+    assert a.next_state(20, now=100.0)[0] is State.LOST
+    a.enter(State.LOST)
+    a.vehicle.lost, a.vehicle.mode = False, mode
+    a.vehicle.position = SimpleNamespace(lat=41.88, lon=-87.63, rel_alt=12.04)
+    return a, a.next_state(20, now=108.1)
+
+
+def test_a_vehicle_back_in_its_failsafe_mode_rejoins_and_says_what_it_found():
+    a, (state, found) = back_from_a_loss("RTL")
+    assert state is State.REJOIN
+    assert found == dict(mode="RTL", armed=True, position=[41.88, -87.63, 12.0], lost_s=8.1)
+    assert a.status == "link back after 8.1 s: RTL, armed, 12 m above home; rejoining"
+
+
+def test_a_vehicle_back_in_a_mode_a_pilot_chose_is_left_to_the_pilot():
+    a, (state, found) = back_from_a_loss("LOITER")
+    assert state is State.OVERRIDE and found["reason"] == "pilot" and found["mode"] == "LOITER"
+    assert a.override_reason == "pilot" and a.status.endswith("left to the pilot")
+    a.enter(state)  # a transition the state machine has
+
+
+def test_an_end_action_not_waited_for_is_not_called_hovering():
+    searching, landing = agent(0, State.SEARCH), agent(1, State.SEARCH)
+    swarm = crew(searching)
+    run(Ending("rtl", 40.0, SimpleNamespace(end_timeout=0.0), swarm.rec, swarm).all())
+    assert searching.end_state == "returning home"
+    swarm = crew(landing)
+    run(Ending("land", 40.0, SimpleNamespace(end_timeout=0.0), swarm.rec, swarm).all())
+    assert landing.end_state == "landing"
+
+
+def test_the_sensor_feed_keeps_the_latest_reports_of_the_last_cells_only():
+    from swarmctl.knowledge.model import Delta
+    from swarmctl.mission.detector import LATEST_CELLS_KEPT, SensorFeed
+
+    feed = SensorFeed(0, 1, GRID.width, GRID.height)
+    cells = [(x, y) for x in range(GRID.width) for y in range(GRID.height)][: LATEST_CELLS_KEPT + 5]
+    for step, cell in enumerate(cells):
+        feed.take(Delta(0, step, cell, cells=np.array([cell]), phi=np.array([255], dtype=np.uint8), obstacle=[False]))
+    assert list(feed.latest) == cells[-LATEST_CELLS_KEPT:] and feed.reports == len(cells)

@@ -8,6 +8,7 @@ carries out the side effects (cancel a rejoin, send the vehicle home) and the sw
 
     new -> connect -> preflight -> takeoff -> search <-> hover
     search / hover / rejoin -> lost -> rejoin -> search        (link loss and return)
+    lost -> override                                           (back in a mode a pilot chose meanwhile)
     search / hover -> override                                 (a pilot's mode, or not commanded:
                                                                 swarmctl.mission.watch)
     search -> low battery                                      (sent home)
@@ -54,7 +55,7 @@ TRANSITIONS: dict[State, frozenset[State]] = {
     State.TAKEOFF: frozenset({State.SEARCH}),
     State.SEARCH: frozenset({State.HOVER, State.LOST, State.OVERRIDE, State.LOW_BATTERY}),
     State.HOVER: frozenset({State.LOST, State.OVERRIDE}),
-    State.LOST: frozenset({State.REJOIN}),
+    State.LOST: frozenset({State.REJOIN, State.OVERRIDE}),
     State.REJOIN: frozenset({State.SEARCH, State.LOST}),
     State.OVERRIDE: frozenset(),
     State.LOW_BATTERY: frozenset(),
@@ -103,6 +104,7 @@ class Agent:
         self.failsafes: dict | None = None  # kind -> failsafes.Failsafe, once read at preflight (failsafes.py)
         self.saw_loss = False  # the link was lost since the agent last looked (even briefly)
         self.pilot_since: float | None = None  # when the vehicle was first seen in a pilot's mode
+        self.lost_at: float | None = None  # when its link was last judged lost (time.monotonic())
         self.override_reason: str | None = None  # override: "pilot" or "not commanded" (swarmctl.mission.watch)
         self.watch_from: tuple[int, int] | None = None  # the cell held at the last off-course check
         self.watch_pos: tuple[float, float] | None = None  # lat, lon at the last check it passed
@@ -151,18 +153,49 @@ class Agent:
         for the autopilot's debounce time -> override (reason "pilot"); a battery below `low_battery` % while
         searching -> low battery."""
         lost = self.vehicle.lost
+        now = time.monotonic() if now is None else now
         if self.state in (State.SEARCH, State.HOVER, State.REJOIN) and (lost or self.saw_loss):
             self.saw_loss = False
+            self.lost_at = now
+            self.status = f"link lost at cell {self.cell}: its own failsafe has it"
             return State.LOST, {"last_cell": self.cell}
         if self.state is State.LOST and not lost:
-            return State.REJOIN, {}
-        if self.state in (State.SEARCH, State.HOVER) and self.pilot_has_it(time.monotonic() if now is None else now):
+            found = self.found_on_return(now)
+            info, mode = self.vehicle.autopilot_info, self.vehicle.mode
+            if self.vehicle.armed and info is not None and info.is_pilot_mode(mode) and mode not in info.failsafe_modes:
+                # flying in a mode a person chose while the link was down: theirs, never taken back (one on
+                # the ground, disarmed, is in its boot or landed mode, and takes off again to rejoin)
+                self.override_reason = "pilot"
+                self.status = f"{self.describe_return(found)}; left to the pilot"
+                return State.OVERRIDE, {"reason": "pilot", **found}
+            self.status = f"{self.describe_return(found)}; rejoining"
+            return State.REJOIN, found
+        if self.state in (State.SEARCH, State.HOVER) and self.pilot_has_it(now):
             self.override_reason = "pilot"
             return State.OVERRIDE, {"mode": self.vehicle.mode, "reason": "pilot"}
         battery = self.battery()
         if self.state is State.SEARCH and battery is not None and battery < low_battery:
             return State.LOW_BATTERY, {"battery": battery}
         return None
+
+    def found_on_return(self, now: float) -> dict[str, Any]:
+        """What the vehicle reports as its link comes back (the rejoin's record): its mode, whether it is
+        armed, its position (lat, lon, metres above home) and how long the link was lost."""
+        v = self.vehicle
+        pos = v.position
+        found: dict[str, Any] = dict(mode=v.mode, armed=bool(v.armed))
+        if pos is not None:
+            found["position"] = [round(pos.lat, 7), round(pos.lon, 7), round(pos.rel_alt, 1)]
+        if self.lost_at is not None:
+            found["lost_s"] = round(now - self.lost_at, 1)
+        return found
+
+    @staticmethod
+    def describe_return(found: dict[str, Any]) -> str:
+        """found_on_return in words: "link back after 8.1 s: RTL, armed, 12 m above home"."""
+        after = f" after {found['lost_s']:g} s" if "lost_s" in found else ""
+        where = f", {found['position'][2]:g} m above home" if "position" in found else ""
+        return f"link back{after}: {found['mode']}, {'armed' if found['armed'] else 'disarmed'}{where}"
 
     def pilot_has_it(self, now: float) -> bool:
         """The pilot took over: the vehicle reports a pilot's mode (its autopilot's is_pilot_mode), and

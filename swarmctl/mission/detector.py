@@ -35,7 +35,7 @@ import asyncio
 import logging
 import socket
 import time
-from collections import deque
+from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -61,6 +61,8 @@ class SensorReport:
 
 
 NEW_REPORTS_KEPT = 256  # reports waiting for take_new (a detector repeats its report while the vehicle stays)
+LATEST_CELLS_KEPT = 16  # cells whose latest report is kept for wait_report: the round waits for the newest
+TARGETS_KEPT_S = 5.0  # a Detection counts for the Delta of its cell that comes within this long
 
 
 class SensorFeed:
@@ -70,7 +72,7 @@ class SensorFeed:
     def __init__(self, vehicle_index: int, mission_id: int, width: int, height: int):
         self.vehicle_index = int(vehicle_index)
         self.codec = KnowledgeCodec(mission_id, width, height)
-        self.latest: dict[tuple[int, int], SensorReport] = {}
+        self.latest: OrderedDict[tuple[int, int], SensorReport] = OrderedDict()  # the last cells reported
         self._new: deque[SensorReport] = deque(maxlen=NEW_REPORTS_KEPT)
         self._targets: dict[tuple[int, int], tuple[float, np.ndarray]] = {}
         self._changed: asyncio.Event | None = None
@@ -91,16 +93,20 @@ class SensorFeed:
             return
         now = time.monotonic()
         if isinstance(message, Detection):
+            self._targets = {c: t for c, t in self._targets.items() if now - t[0] < TARGETS_KEPT_S}
             self._targets[message.cell] = (now, message.targets)
             return
         if not isinstance(message, Delta):
             return
         targets = np.zeros((0, 2), dtype=np.int64)
         seen = self._targets.get(message.cell)
-        if seen is not None and now - seen[0] < 5.0:
+        if seen is not None and now - seen[0] < TARGETS_KEPT_S:
             targets = seen[1]
         report = SensorReport(message.cell, now, message.cells, dequantise_phi(message.phi), message.obstacle, targets)
-        self.latest[message.cell] = report
+        self.latest[message.cell] = report  # bounded: a long mission reaches thousands of cells
+        self.latest.move_to_end(message.cell)
+        while len(self.latest) > LATEST_CELLS_KEPT:
+            self.latest.popitem(last=False)
         self._new.append(report)
         self.reports += 1
         if self._changed is not None:

@@ -72,6 +72,8 @@ class Ending:
             if action in ("land", "rtl") and wait > 0:
                 await a.vehicle.wait_landed(wait)
                 a.end_state = "landed at home" if action == "rtl" else "landed"
+            elif action in ("land", "rtl"):  # end_timeout = 0: sent, its landing not waited for
+                a.end_state = "returning home" if action == "rtl" else "landing"
             else:
                 a.end_state = "hovering on target" if a.state is State.HOVER else "hovering"
         except (TimeoutError, MavlinkError) as exc:

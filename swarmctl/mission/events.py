@@ -178,7 +178,31 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             Field("state", "str", "-", "the new state", values=AGENT_STATES),
             Field("cell", "cell", "cells", "the vehicle's cell then (null: none yet / none held)", nullable=True),
             Field("last_cell", "cell", "cells", "lost: the last cell it held", required=False, nullable=True),
-            Field("mode", "str", "-", "override: the flight mode the pilot chose", required=False),
+            Field(
+                "mode", "str", "-", "override: the flight mode the pilot chose; rejoin: the mode found", required=False
+            ),
+            Field(
+                "armed",
+                "bool",
+                "-",
+                "rejoin, or override after a link loss: armed when the link came back",
+                required=False,
+            ),
+            Field(
+                "position",
+                "numbers",
+                "deg, deg, m",
+                "rejoin, or override after a link loss: latitude, longitude and metres above home when the link "
+                "came back",
+                required=False,
+            ),
+            Field(
+                "lost_s",
+                "number",
+                "s",
+                "rejoin, or override after a link loss: how long the link was lost",
+                required=False,
+            ),
             Field(
                 "reason",
                 "str",

@@ -32,6 +32,9 @@ class Autopilot(abc.ABC):
     mav_autopilot: ClassVar[int]  # HEARTBEAT.autopilot (MAV_AUTOPILOT)
     command_mode: ClassVar[str]  # the mode swarmctl steers the vehicle in with position targets
     mode_debounce_s: ClassVar[float] = 0.0  # a pilot's mode must be reported this long before it counts
+    # the modes the vehicle's own failsafes switch to (GCS link, battery): one found in them when its link
+    # comes back is taken back into the search; any other pilot's mode was a person's choice and is kept
+    failsafe_modes: ClassVar[frozenset[str]] = frozenset()
     signs_link: ClassVar[bool]  # the mission's signing key signs this vehicle's MAVLink
     signing: ClassVar[str]  # what signing means on the path swarmctl flies it by
     arm_refusal: ClassVar[str]  # the MAV_RESULT the autopilot answers an arm with while it is not ready

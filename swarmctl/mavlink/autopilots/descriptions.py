@@ -65,6 +65,7 @@ class ArduPilotAutopilot(Autopilot):
     mav_autopilot = 3  # MAV_AUTOPILOT_ARDUPILOTMEGA
     command_mode = "GUIDED"
     mode_debounce_s = 0.0  # heartbeats carry the mode as it is
+    failsafe_modes = frozenset({"RTL", "SMART_RTL", "LAND"})  # FS_GCS_ENABLE 1-5, the battery failsafe's actions
     signs_link = True
     signing = "MAVLink 2 signing on the link: the mission's signing key signs every message both ways"
     arm_refusal = "FAILED"  # with an "Arm: ..." STATUSTEXT (the periodic pre-arm checks say "PreArm: ...")
