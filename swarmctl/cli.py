@@ -17,7 +17,7 @@ def cli() -> None:
 
 from swarmctl.bench import bench_command  # noqa: E402
 from swarmctl.geo.cli import plan_command  # noqa: E402
-from swarmctl.learn.cli import eval_command, train_command  # noqa: E402
+from swarmctl.learn.cli import eval_command, train_command, train_search_command  # noqa: E402
 from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
 from swarmctl.replay.cli import replay_command  # noqa: E402
 from swarmctl.sim.cli import mock_vehicle_command  # noqa: E402
@@ -25,6 +25,7 @@ from swarmctl.sim.cli import mock_vehicle_command  # noqa: E402
 for command in (
     eval_command,
     train_command,
+    train_search_command,
     bench_command,
     plan_command,
     mock_vehicle_command,

@@ -1,4 +1,4 @@
-"""`swarmctl eval`: compare policies on the same episodes."""
+"""`swarmctl eval`: compare policies on the same episodes; `swarmctl train` and `train-search`: train them."""
 
 from __future__ import annotations
 
@@ -20,6 +20,7 @@ from swarmctl.cli_options import (
 )
 from swarmctl.learn.curriculum import curriculum_side
 from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
+from swarmctl.learn.search_config import SearchConfig
 from swarmctl.learn.train_config import MAX_EPISODES, MAX_STEPS, TrainConfig
 from swarmctl.policy.registry import POLICY_HELP
 from swarmctl.world.beliefs import VARIANT_CHANNELS
@@ -227,6 +228,125 @@ def train_command(seed, out, init, device, resume, progress, **kwargs):
         f"held-out success {final.get('success_rate', float('nan')):.3f}, "
         f"mean steps {final.get('mean_steps', float('nan')):.2f}"
     )
+
+
+SEARCH_FIELDS = (  # the SearchConfig fields train-search sets, in the order of its help
+    "seed",
+    "episodes",
+    "parallel_envs",
+    "threads",
+    "curriculum",
+    "stages",
+    "advance_share",
+    "current_share",
+    "reward_target",
+    "reward_cell",
+    "step_cost",
+    "success_bonus",
+    "collision_penalty",
+    "gamma",
+    "n_step",
+    "nstep_weight",
+    "margin",
+    "margin_form",
+    "margin_weight",
+    "l2",
+    "lr",
+    "batch_size",
+    "updates_per_step",
+    "target_update_every",
+    "pretrain_updates",
+    "replay_capacity",
+    "demo_episodes",
+    "dagger_capacity",
+    "dagger_every",
+    "demo_share_start",  # --demo-share START END
+    "epsilon_start",  # --epsilon START END
+    "eval_every",
+    "val_episodes",
+    "val_seed",
+    "test_episodes",
+    "test_seed",
+    "keep_resume",
+)
+SEARCH_WORLD = ("window", "fov", "variant", "remove_taken")  # the observation; the stages set the rest
+
+
+@click.command("train-search")
+@options_from(SearchConfig, SEARCH_FIELDS)
+@options_from(WorldConfig, SEARCH_WORLD)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    required=True,
+    help="Checkpoint to write, e.g. models/search.pt (NAME.best.pt the best on the validation seed, NAME.csv "
+    "the metrics, NAME.test.json the test report, NAME.replay.pt the stores for --resume).",
+)
+@click.option("--device", type=click.Choice(["auto", "cpu", "cuda"]), default="auto", show_default=True)
+@click.option(
+    "--resume",
+    is_flag=True,
+    help="Continue the stopped run whose checkpoint is --out (networks, optimiser, counters, stores, random "
+    "states); give the run's own options.",
+)
+@click.option(
+    "--tensorboard",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=None,
+    help="Also write TensorBoard scalars to this folder (needs the tensorboard package).",
+)
+@click.option("--progress/--no-progress", default=True)
+def train_search_command(out, device, resume, tensorboard, progress, **kwargs):
+    """Train the shared Q-network with the search recipe: team reward, deep Q-learning from the coordinated
+    planner's demonstrations and DAgger labels, a curriculum opened by competence (swarmctl.learn.search_recipe)."""
+    import torch
+
+    from swarmctl.learn.search_recipe import train
+
+    cfg = SearchConfig(**values_from(SearchConfig, kwargs, SEARCH_FIELDS))
+    world = WorldConfig(**values_from(WorldConfig, kwargs, SEARCH_WORLD))
+    require(world.window >= 8, f"--window {world.window}: the network needs F >= 8")
+    require(not resume or out.is_file(), f"--resume: {out} does not exist; give the --out of the stopped run")
+    require(cfg.batch_size <= cfg.replay_capacity, f"--replay {cfg.replay_capacity} must hold a batch")
+    stages = cfg.curriculum_stages()
+    worlds = [w for s in stages for w in s.worlds]
+    slot = VARIANT_CHANNELS[world.variant] * world.window**2 * 2 + 64  # a float16 observation and its numbers
+    demos = sum(cfg.demo_episodes * w.uavs * (w.steps + 1) for w in worlds)
+    require_memory(
+        slot * (len(stages) * (cfg.replay_capacity + cfg.dagger_capacity) + demos),
+        f"the stores of {len(stages)} stages ({cfg.replay_capacity:,} + {cfg.dagger_capacity:,} samples each, "
+        f"and up to {demos:,} of demonstrations)",
+        "give a smaller --replay, --dagger-capacity or --demo-episodes, or fewer --stages",
+    )
+    for w in worlds:
+        require_world_memory(replace(world, map_size=w.map_size, uavs=w.uavs), cfg.parallel_envs, w.name)
+    writable_file(out, "--out")
+    writable_file(out.with_suffix(".csv"), "--out")
+    if device == "auto":
+        device = "cuda" if torch.cuda.is_available() else "cpu"
+    require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
+    stop = _stop_on_signals()
+    meta = train(world, cfg, out, device=device, progress=progress, resume=resume, stop=stop, tensorboard=tensorboard)
+    if meta.get("stopped"):
+        click.echo(
+            f"stopped after {meta['episodes']} episodes; saved {out} and its stores: continue with the same "
+            "command and --resume",
+            err=True,
+        )
+        raise click.exceptions.Exit(130)
+    final = meta["final_eval"] or {}
+    click.echo(
+        f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates, "
+        f"stage {meta['stage_reached'] + 1} of {len(stages)}); validation success "
+        f"{final.get('success_rate', float('nan')):.3f} (the teacher's on its stage "
+        f"{final.get('teacher_stage_success', float('nan')):.3f})"
+    )
+    for name, row in (meta.get("test") or {}).get("student", {}).items():
+        teacher = meta["test"]["teacher"][name]
+        click.echo(
+            f"test {name}: success {row['success_rate']:.3f} (teacher {teacher['success_rate']:.3f}), "
+            f"mean steps {row['mean_steps']:.2f} (teacher {teacher['mean_steps']:.2f})"
+        )
 
 
 def _stop_on_signals():

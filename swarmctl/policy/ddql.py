@@ -24,7 +24,9 @@ vehicles from looping), `ddql-greedy:PATH` takes argmax Q. Options, appended as 
   the split explicitly (a recording's forward is rebuilt by this name).
 
 `ddql:PATH:taken=keep:hover=no:mask=no` is the paper's DDQL Soft. The observation settings (window,
-rho, sigma2, ...) are the ones stored in the checkpoint's world config.
+rho, sigma2, ...) are the ones stored in the checkpoint's world config. A checkpoint that names the
+rules it was trained under (`train["recipe"]`: `hover`, `mask`, `taken`, as swarmctl.learn.search_recipe
+writes them) flies under them where the spec leaves an option out (`trained_rules`).
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from swarmctl.policy.checkpoint import load_checkpoint
 from swarmctl.policy.draws import SOFTMAX, Draws
 from swarmctl.policy.forward import BACKENDS as FORWARD_BACKENDS
 from swarmctl.policy.forward import make_forward
-from swarmctl.policy.hover import HOVER_ALIASES
+from swarmctl.policy.hover import FIRST, HOVER_ALIASES
 from swarmctl.policy.planners import FrontierPolicy
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
@@ -65,19 +67,25 @@ class DDQLPolicy:
         path: str,
         tau: float | None = 0.1,
         name: str | None = None,
-        remove_taken: bool = True,
-        hover: bool | str = True,
-        mask: bool = True,
+        remove_taken: bool | None = True,
+        hover: bool | str | None = True,
+        mask: bool | None = True,
         straggler_frontier: bool = False,
         forward: str = "auto",
     ):
+        """remove_taken, hover, mask: None takes the checkpoint's trained rule (trained_rules), else the
+        default above."""
         self.path = path
         self.tau = tau
-        self.remove_taken, self.hover, self.mask = remove_taken, hover, mask
         self.hold: int | None = None  # targets the mission holds, when fewer than its vehicles
         self.straggler_frontier = straggler_frontier
         self.name = name or f"ddql:{path}"
         self.net, self.info = load_checkpoint(path)
+        rules = trained_rules(self.info, path)
+        self.remove_taken = rules.get("taken", "remove") == "remove" if remove_taken is None else remove_taken
+        trained = rules.get("hover", FIRST)
+        self.hover: bool | str = HOVER_ALIASES.get(trained, trained) if hover is None else hover
+        self.mask = rules.get("mask", "yes") == "yes" if mask is None else mask
         self.forward = make_forward(self.net, forward, key=self.info.get("weights_sha256"))
         # as it was trained (the window of the network itself)
         world = ObservationSettings.from_world(self.info["world"])
@@ -130,6 +138,24 @@ class DDQLPolicy:
         return replace(self.settings, phi_tolerance=phi_tolerance)
 
 
+def trained_rules(info: dict[str, object], path: str) -> dict[str, str]:
+    """The rules a checkpoint was trained under, from its train["recipe"] (hover, mask, taken), each
+    checked against the values its `ddql:` option takes; {} when it names none."""
+    train = info.get("train")
+    recipe = train.get("recipe") if isinstance(train, dict) else None
+    if not isinstance(recipe, dict):
+        return {}
+    rules = {}
+    for key in ("hover", "mask", "taken"):
+        value = recipe.get(key)
+        if value is None:
+            continue
+        if value not in _CHOICES[key]:
+            raise InputError(f"{path}: train.recipe.{key} = {value!r} is not a rule ddql: takes; use an intact file")
+        rules[key] = str(value)
+    return rules
+
+
 MAX_TAU = 100.0  # a softmax temperature beyond this is a uniform draw, and inf or NaN are no number
 
 
@@ -177,9 +203,10 @@ def make_ddql_policy(spec: str) -> DDQLPolicy:
         path,
         tau=tau,
         name=spec,
-        remove_taken=options.get("taken", "remove") == "remove",
-        hover=HOVER_ALIASES.get(options.get("hover", "first"), options.get("hover", "first")),
-        mask=options.get("mask", "yes") == "yes",
+        # an option left out: the checkpoint's trained rule, else the default (DDQLPolicy)
+        remove_taken=options["taken"] == "remove" if "taken" in options else None,
+        hover=HOVER_ALIASES.get(options["hover"], options["hover"]) if "hover" in options else None,
+        mask=options["mask"] == "yes" if "mask" in options else None,
         straggler_frontier=options.get("straggler", "network") == "frontier",
         forward=options.get("forward", "auto"),
     )
