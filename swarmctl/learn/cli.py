@@ -319,7 +319,9 @@ def train_search_command(out, device, resume, tensorboard, progress, **kwargs):
         "give a smaller --replay, --dagger-capacity or --demo-episodes, or fewer --stages",
     )
     for w in worlds:
-        require_world_memory(replace(world, map_size=w.map_size, uavs=w.uavs), cfg.parallel_envs, w.name)
+        require_world_memory(
+            replace(world, map_size=w.map_size, uavs=w.uavs, targets=w.targets), cfg.parallel_envs, w.name
+        )
     writable_file(out, "--out")
     writable_file(out.with_suffix(".csv"), "--out")
     if device == "auto":
