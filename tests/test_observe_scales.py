@@ -1,6 +1,7 @@
 """The scales observation (swarmctl.world.observe_scales) and its network: hand-built cases, a
-cell-by-cell reference, the field's builder against the simulator's, batch independence, the same
-shape on every map, and the network's forward, backward, FLOPs and checkpoints."""
+cell-by-cell reference, the bit-set BFS against the paths module's, the field's builder against the
+simulator's, batch independence (shared tables, the few deciders' Python paths), the same shape on
+every map, and the network's forward, backward, FLOPs and checkpoints."""
 
 from __future__ import annotations
 
@@ -12,10 +13,20 @@ from swarmctl.knowledge.model import Knowledge
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
 from swarmctl.policy.qnet import ScalesQNetwork, make_network, parameter_count, scales_forward_flops
 from swarmctl.world import SearchEnv, WorldConfig
+from swarmctl.world import beliefs as beliefs_module
+from swarmctl.world import observe_scales as scales_module
 from swarmctl.world.beliefs import SCALES_VARIANT, VARIANT_CHANNELS, Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
-from swarmctl.world.observe_scales import CELLS_PER_PIXEL, CHANNELS, DISTANCE_CELLS, SCALE_CHANNELS, path_steps
-from swarmctl.world.paths import grid_distances
+from swarmctl.world.observe_scales import (
+    CELLS_PER_PIXEL,
+    CHANNELS,
+    DISTANCE_CELLS,
+    MARGIN,
+    SCALE_CHANNELS,
+    UNREACHED,
+    pixel_steps,
+)
+from swarmctl.world.paths import UNREACHABLE, grid_distances
 from tests.test_decide_few import random_beliefs
 from tests.test_policy_conformance import CASES, field_beliefs, played
 
@@ -58,16 +69,32 @@ def one_vehicle(w, h, me, explored=None, obstacles=(), targets=(), others=(), st
     )
 
 
+def pixel_distance(obstacles: np.ndarray, x0: int, y0: int, k: int) -> np.ndarray:
+    """(S, S) the distance channel of one scale (k cells a pixel) pixel by pixel: a BFS over the
+    (S + 2 MARGIN)^2 pixels round the vehicle's, a pixel passable when a cell of it on the map is not an
+    obstacle, the vehicle's always; d steps read d k less k // 2 per axis off the vehicle's pixel."""
+    grid = SIDE + 2 * MARGIN
+    passable = np.zeros((1, grid, grid), dtype=bool)
+    for i in range(grid):
+        for j in range(grid):
+            x = x0 + (i - MARGIN - MID) * k - k // 2
+            y = y0 + (j - MARGIN - MID) * k - k // 2
+            cells = obstacles[max(x, 0) : max(x + k, 0), max(y, 0) : max(y + k, 0)]
+            passable[0, i, j] = cells.size > 0 and not cells.all()
+    source = np.zeros_like(passable)
+    source[0, MARGIN + MID, MARGIN + MID] = True
+    steps = grid_distances(passable, source)[0, MARGIN : MARGIN + SIDE, MARGIN : MARGIN + SIDE]
+    off = (np.arange(SIDE) != MID).astype(int)
+    cells = steps * k - (k // 2) * (off[:, None] + off[None, :])
+    return np.where(steps == UNREACHABLE, 1.0, np.minimum(cells, DISTANCE_CELLS) / DISTANCE_CELLS)
+
+
 def reference(beliefs: Beliefs, b: int, u: int) -> np.ndarray:
     """(21, S, S): the crop channels of one decider, pixel by pixel on a map padded with each channel's
     off-map value."""
-    w, h = beliefs.width, beliefs.height
     explored, obstacles = beliefs.explored[b, u], beliefs.obstacles[b, u]
     free = beliefs.targets[b, u] & ~beliefs.hover_cells[b, u]
     x0, y0 = beliefs.pos[b, u]
-    source = np.zeros((1, w, h), dtype=bool)
-    source[0, x0, y0] = True
-    steps = np.minimum(grid_distances(~obstacles[None], source)[0], DISTANCE_CELLS) / DISTANCE_CELLS
     unexplored = np.pad(~explored, 1, constant_values=False)
     near = unexplored[2:, 1:-1] | unexplored[:-2, 1:-1] | unexplored[1:-1, 2:] | unexplored[1:-1, :-2]
     frontier = explored & ~obstacles & near
@@ -77,7 +104,6 @@ def reference(beliefs: Beliefs, b: int, u: int) -> np.ndarray:
         "blocked": (obstacles, 1.0, np.mean),
         "free targets": (free, 0.0, np.sum),
         "frontier": (frontier, 0.0, np.max),
-        "distance": (steps, 1.0, np.min),
     }
     out = np.zeros((len(CELLS_PER_PIXEL), len(SCALE_CHANNELS), SIDE, SIDE))
     for s, k in enumerate(CELLS_PER_PIXEL):
@@ -88,6 +114,7 @@ def reference(beliefs: Beliefs, b: int, u: int) -> np.ndarray:
                     x = x0 + (i - MID) * k - k // 2 + pad
                     y = y0 + (j - MID) * k - k // 2 + pad
                     out[s, CHANNEL[name], i, j] = pooling(padded[x : x + k, y : y + k])
+        out[s, CHANNEL["distance"]] = pixel_distance(obstacles, x0, y0, k)
         for n in np.flatnonzero(beliefs.others[b, u]):
             i, j = (beliefs.positions[b, u, n] - (x0, y0) + MID * k + k // 2) // k
             if 0 <= i < SIDE and 0 <= j < SIDE:
@@ -148,6 +175,30 @@ def test_the_path_distance_goes_round_a_wall_and_through_unexplored_cells():
     assert distance[MID + 5, MID] == np.float32((5 + 5 + 5) / DISTANCE_CELLS)  # (15, 10): unexplored, passable
 
 
+def test_a_detour_out_of_the_crop_is_seen_within_the_margin():
+    # a wall from y = 0 to y = 16 at x = 12: the gap at y = 17 is 2 cells beyond the crop (y 5 .. 15)
+    beliefs = one_vehicle(20, 20, (10, 10), obstacles=[(12, y) for y in range(0, 17)])
+    distance = channel(observe(beliefs)[0, 0], 1, "distance")
+    assert MARGIN >= 2 and distance[MID + 3, MID] == np.float32((7 + 3 + 7) / DISTANCE_CELLS)
+    walled = one_vehicle(40, 40, (10, 10), obstacles=[(12, y) for y in range(0, 10 + MID + MARGIN + 1)])
+    assert channel(observe(walled)[0, 0], 1, "distance")[MID + 3, MID] == 1  # the gap beyond the search: none
+
+
+def test_the_coarse_scales_search_their_own_pixels():
+    obs = observe(one_vehicle(64, 64, (30, 30)))[0, 0]  # an open map: the nearest cell's steps
+    for k in CELLS_PER_PIXEL:
+        distance = channel(obs, k, "distance") * DISTANCE_CELLS
+        for i, j in [(MID + 1, MID), (MID, MID - 2), (MID + 1, MID + 1), (MID - 3, MID + 2)]:
+            nearest = sum(max(abs(d) * k - k // 2, 0) for d in (i - MID, j - MID))
+            assert np.isclose(distance[i, j], min(nearest, DISTANCE_CELLS)), (k, i, j)
+    # a wall 3 cells thick (x = 32 .. 34: pixel MID + 1 of 3 cells) from y = 0 to 44 (pixel MID + 5 ends at 43)
+    wall = [(x, y) for x in range(32, 35) for y in range(0, 45)]
+    distance = channel(observe(one_vehicle(64, 64, (30, 30), obstacles=wall))[0, 0], 3, "distance")
+    assert distance[MID + 1, MID] == 1  # the wall's pixel
+    # the pixel east of it (cells 36 .. 38): round the wall's end, 5 pixels up, 2 across, 5 down
+    assert np.isclose(distance[MID + 2, MID] * DISTANCE_CELLS, 12 * 3 - 1)
+
+
 def test_the_scales_pixels_cover_1_3_and_9_cells():
     x, y = 30, 30
     beliefs = one_vehicle(64, 64, (x, y), targets=[(x + 4, y), (x, y - 13)])
@@ -184,18 +235,18 @@ def test_the_observation_is_the_pixel_by_pixel_reference(seed, w, h, vehicles):
             assert np.allclose(obs[b, u, :21], reference(beliefs, b, u), rtol=0, atol=1e-7), (b, u)
 
 
-@pytest.mark.parametrize("seed, w, h", [(3, 30, 20), (4, 50, 50)])
-def test_path_steps_are_the_bfs_of_the_paths_module(seed, w, h):
+@pytest.mark.parametrize("seed, n, x, y", [(3, 4, 30, 20), (4, 9, 15, 15), (5, 1, 1, 7)])
+def test_the_bitset_bfs_is_the_bfs_of_the_paths_module(seed, n, x, y):
     rng = np.random.default_rng(seed)
-    obstacles = rng.random((4, w, h)) < 0.3
-    pos = np.stack([rng.integers(0, w, 4), rng.integers(0, h, 4)], axis=1)
-    sources = np.zeros_like(obstacles)
-    sources[np.arange(4), pos[:, 0], pos[:, 1]] = True
-    expected = np.minimum(grid_distances(~obstacles, sources), DISTANCE_CELLS)
-    assert np.array_equal(path_steps(obstacles, pos), expected)
-    assert np.array_equal(path_steps(obstacles, pos, limit=7), np.minimum(expected, 7))
-    clear = np.zeros_like(obstacles)
-    assert np.array_equal(path_steps(clear, pos), np.minimum(grid_distances(~clear, sources), DISTANCE_CELLS))
+    passable = np.zeros((n, x + 2, y + 2), dtype=bool)
+    passable[:, 1:-1, 1:-1] = rng.random((n, x, y)) < 0.7
+    source = (int(rng.integers(0, x)), int(rng.integers(0, y)))
+    sources = np.zeros((n, x, y), dtype=bool)
+    sources[:, source[0], source[1]] = True
+    expected = grid_distances(passable[:, 1:-1, 1:-1] | sources, sources)
+    for limit in (DISTANCE_CELLS, 5):
+        steps = pixel_steps(passable, source, limit)
+        assert steps.dtype == np.uint8 and np.array_equal(steps, np.where(expected < limit, expected, UNREACHED))
 
 
 @pytest.mark.parametrize("channel_model", ["ideal", "fixed"])
@@ -216,6 +267,28 @@ def test_a_deciders_observation_does_not_depend_on_the_rest_of_the_batch():
     assert np.array_equal(observe(beliefs.select(order)), whole[order])
     for b in (0, 3):
         assert np.array_equal(observe(beliefs.select([b]))[0], whole[b])
+
+
+@pytest.mark.parametrize("channel_model", ["ideal", "fixed"])
+def test_shared_tables_and_the_few_deciders_paths_observe_the_same(channel_model, monkeypatch):
+    """Deciders with the same maps share a summed table (always for a few, by bytes; from SHARE_CELLS by
+    numpy) and a few deciders' vehicles and held targets are Python arithmetic: all give the same."""
+    env = played(channel_model, 6, 10)
+    beliefs = env.beliefs().with_settings(variant=SCALES_VARIANT, window=SIDE)
+    shared = scales_module.shared_rows(beliefs)
+    if channel_model == "ideal":  # every vehicle knows what every other does: one table an episode
+        assert np.array_equal(shared, np.repeat(np.arange(env.batch) * env.cfg.uavs, env.cfg.uavs))
+    expected = [observe(beliefs.select([b]))[0] for b in range(env.batch)]
+    small = beliefs_module.SMALL
+    monkeypatch.setattr(scales_module, "SHARE_FEW", 0)
+    for cells in (0, 1 << 40):  # shared and not
+        monkeypatch.setattr(scales_module, "SHARE_CELLS", cells)
+        assert np.array_equal(scales_module.shared_rows(beliefs), shared)
+        assert np.array_equal(observe(beliefs), np.stack(expected))
+        monkeypatch.setattr(beliefs_module, "SMALL", 0)  # no crews: the batched paths
+        for b in range(env.batch):
+            assert np.array_equal(observe(beliefs.select([b]))[0], expected[b])
+        monkeypatch.setattr(beliefs_module, "SMALL", small)
 
 
 def test_the_observation_has_one_shape_on_every_map_and_a_network_learns_from_it():
