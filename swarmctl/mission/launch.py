@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from collections.abc import Callable
 
     from swarmctl.mavlink.connect import Connector
+    from swarmctl.mavlink.vehicle import Position
     from swarmctl.mission.crew import Crew
     from swarmctl.mission.flight import Flight
     from swarmctl.mission.plan import MissionPlan
@@ -39,6 +40,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 NOTE_REPEAT_S = 10.0  # a preflight note repeated within this long is not shown again
+FRESH_REPORT_S = 2.0  # a rejoin waits this long at most for a position report from after the link came back
+POLL_S = 0.05
 
 
 class Launch:
@@ -219,20 +222,33 @@ class Launch:
         if not self.state.stopping:
             self.rec.event("fence", vehicle=a.name, sysid=a.spec.sysid, uploaded=True, vertices=len(fence))
 
+    async def fresh_position(self, a: Agent, timeout: float = FRESH_REPORT_S) -> Position | None:
+        """The vehicle's next position report (its heartbeat, with its arming, comes as often), or the
+        last one after `timeout` s."""
+        old = a.vehicle.position
+        deadline = time.monotonic() + timeout
+        while a.vehicle.position is old and time.monotonic() < deadline and not self.state.stopping:
+            await asyncio.sleep(POLL_S)
+        return a.vehicle.position
+
     async def rejoin(self, a: Agent) -> None:
         """A vehicle back after a link loss: take it back from its failsafe in the air (or take off again
         from the ground, after its fence), fly to the nearest free cell, and search again."""
         timing = self.plan.spec.timing
         try:
-            pos = a.vehicle.position
+            # what the vehicle reported before its link went is stale: decide on a report from after it
+            pos = await self.fresh_position(a)
             if a.vehicle.armed and pos is not None and pos.rel_alt > RESUME_ABOVE_M:
                 # still in the air, perhaps returning or landing on its failsafe: take it back there
                 await a.vehicle.resume()
             else:
-                if self.fence is not None:  # a rebooted ArduPilot keeps its fence but has it off again
-                    await self.state.until_stopped(
-                        a.vehicle.wait_ready(timing.ready_timeout, report=lambda t: self.note(a, t))
-                    )
+                # on the ground: ready to arm in the mode it is flown in first (its failsafe left it in RTL
+                # or LAND, a reboot in its boot mode), and the fence again (a rebooted ArduPilot keeps its
+                # fence but has it off)
+                await self.state.until_stopped(
+                    a.vehicle.wait_ready(timing.ready_timeout, report=lambda t: self.note(a, t))
+                )
+                if self.fence is not None:
                     if a.vehicle.home is None:
                         raise MavlinkError(f"{a.name}: no home position")
                     await self.upload_fence(a, a.vehicle.home)
