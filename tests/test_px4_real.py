@@ -1,6 +1,8 @@
 """The PX4 driver against real PX4 SITL (../shared/px4, SIH physics; skipped without it): readiness,
 the reposition in both frames the SITL build takes, a refused frame answered without harm, knowledge
-frames on the vehicle's link, the speed parameters read, a landing.
+frames on the vehicle's link, the speed parameters read, a landing; steering in OFFBOARD (targets sent
+without an answer, the end actions from it, what the vehicle does when the setpoint stream stops, a
+pilot's mode left alone).
 
 The harness (tests/px4_support.py) starts a free instance of the tests' PX4 numbers (-i 5-9, system id N+1) and
 always stops it.
@@ -34,7 +36,8 @@ async def fly(sitl) -> dict:
     knowledge frames, land; what was seen on the way."""
     seen: dict = {}
     t0 = time.monotonic()
-    v = PX4Vehicle(sitl.connection, sysid=sitl.sysid, name=f"px4 -i {sitl.instance}")
+    # the reposition (what the driver falls back to where OFFBOARD is not used): OFFBOARD off
+    v = PX4Vehicle(sitl.connection, sysid=sitl.sysid, name=f"px4 -i {sitl.instance}", offboard=False)
     try:
         await v.connect(20)
         seen["connected_s"] = time.monotonic() - t0
@@ -119,3 +122,94 @@ def test_px4_sitl_parameters_a_user_sets_exist_with_the_documented_defaults():
         sysid = sitl.sysid
     assert values.pop("MAV_SYS_ID") == sysid
     assert values == {k: v for k, v in documented.items() if k != "MAV_SYS_ID"}
+
+
+async def steer_in_offboard(sitl) -> dict:
+    """Take off, fly two targets in OFFBOARD (the second without an answer), return from OFFBOARD and take
+    the vehicle back, stop the setpoint stream with the controller alive, hand it to a pilot (MAVSDK's
+    manual control, POSCTL), land; what was seen on the way."""
+    from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync
+
+    seen: dict = {}
+    v = PX4Vehicle(sitl.connection, sysid=sitl.sysid, name=f"px4 -i {sitl.instance}")
+    sticks: asyncio.Task | None = None
+
+    async def mode(name: str, timeout: float = 5.0) -> float:
+        t = time.monotonic()
+        await v._poll(lambda: v.mode == name, timeout, f"mode {name}")
+        return round(time.monotonic() - t, 2)
+
+    async def fly_to(north: float, east: float) -> tuple[bool, float]:
+        lat, lon = offset_m(home.lat, home.lon, north, east)
+        t = time.monotonic()
+        nowait = v.goto_nowait(lat, lon, HEIGHT)
+        if not nowait:
+            await v.goto(lat, lon, HEIGHT)
+        await v.wait_reached(0.5, 20)
+        return nowait, round(time.monotonic() - t, 2)
+
+    try:
+        await v.connect(20)
+        await v.wait_ready(30)
+        await v.arm_and_takeoff(HEIGHT, timeout=60)
+        await v._poll(lambda: v.offboard_loss is not None, 10, "COM_OBL_RC_ACT read")
+        seen["offboard_loss"] = v.offboard_loss
+        home = v.home
+        seen["first"] = await fly_to(0.0, 8.0)  # enters OFFBOARD: goto, an acknowledged mode change
+        seen["steering"], seen["mode"] = v.steering, v.mode
+        seen["second"] = await fly_to(0.0, 0.0)  # in OFFBOARD: goto_nowait
+        await v.rtl()  # the end action from OFFBOARD
+        seen["rtl_s"] = await mode("RTL")
+        await v.resume()  # taken back from a return, as a rejoin does
+        await mode("HOLD")
+        seen["third"] = await fly_to(6.0, 0.0)
+        seen["back_in"] = v.mode
+        # the stream stops while the controller lives: the vehicle leaves OFFBOARD by itself
+        assert v._offboard is not None
+        v._offboard.destroy()
+        v._offboard = None
+        seen["stream_lost_s"] = await mode("RTL", 10)
+        v._offboard = OffboardAsync(v._system)
+        await v.resume()
+        await mode("HOLD")
+        seen["fourth"] = await fly_to(0.0, 0.0)
+        # a pilot: MAVSDK's manual control (sticks centred, 20 Hz), then POSCTL
+        pilot = ManualControlAsync(v._system)
+
+        async def centred() -> None:
+            while True:
+                await pilot.set_manual_control_input(0.0, 0.0, 0.5, 0.0)
+                await asyncio.sleep(0.05)
+
+        sticks = asyncio.create_task(centred())
+        await asyncio.sleep(0.5)
+        await pilot.start_position_control()
+        await mode("POSCTL")
+        lat, lon = offset_m(home.lat, home.lon, 0.0, 8.0)
+        seen["nowait_in_posctl"] = v.goto_nowait(lat, lon, HEIGHT)
+        await v.goto(lat, lon, HEIGHT)  # kept, not sent
+        await asyncio.sleep(2.5)  # in OFFBOARD the vehicle would have flown 6-7 m east by now
+        seen["after_pilot"] = (v.mode, round(distance_m(v.position.lat, v.position.lon, home.lat, home.lon), 1))
+        await v.land()  # from POSCTL, the pilot still there
+        await v.wait_landed(60)
+    finally:
+        if sticks is not None:
+            sticks.cancel()
+        await v.close()
+    return seen
+
+
+def test_px4_sitl_steers_in_offboard_and_is_safe_when_the_stream_stops_or_a_pilot_takes_it():
+    with px4_sitl(1) as (sitl,):
+        seen = run(steer_in_offboard(sitl), timeout=150)
+    # COM_OBL_RC_ACT 0 (PX4's default): position mode, and without manual control the RC-loss action
+    assert seen["offboard_loss"].startswith("position mode"), seen
+    assert (seen["steering"], seen["mode"], seen["back_in"]) == ("offboard", "OFFBOARD", "OFFBOARD"), seen
+    assert seen["first"][0] is False and seen["second"][0] is True, seen  # the second went out at once
+    assert max(seen[k][1] for k in ("first", "second", "third", "fourth")) < 8.0, seen  # 8 m: 2.6-3.8 s measured
+    assert seen["rtl_s"] < 3.0, seen
+    # the stream stopped for COM_OF_LOSS_T (1 s): NAV_RCL_ACT's return (measured 1.7-1.9 s)
+    assert seen["stream_lost_s"] < 5.0, seen
+    assert seen["nowait_in_posctl"] is False and seen["after_pilot"][0] == "POSCTL", seen
+    assert seen["after_pilot"][1] < 3.0, seen  # held where the pilot has it (1.4 m: SIH's noise), not sent 8 m east

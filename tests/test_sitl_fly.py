@@ -31,6 +31,9 @@ pytestmark = pytest.mark.sitl
 
 HOME_M = 3.0  # "landed at home": within this of the home the autopilot reports (RTL lands 0.02-0.7 m off)
 MIN_CELLS = 3  # distinct cells per vehicle in CI's short search (kept short for CI's time)
+# the PX4 pair's 40 s search, steered in OFFBOARD: 10 distinct cells each (tools/sitl_search.py --swarm px4
+# --time-limit 40; rounds of 3.2-11 s); in HOLD with repositions and a 3-D reach it was 4-5 (rounds of 6-22 s)
+PX4_MIN_CELLS = 7
 FOV = 3  # the planners' sensing radius in cells (the mission's footprint)
 DDQL = "ddql:models/obstacles-3uav.pt:straggler=frontier"
 
@@ -123,13 +126,13 @@ def footprint(cells: set[tuple[int, int]], shape: tuple[int, int]) -> np.ndarray
     return covered
 
 
-def assert_searched_shared_and_home(r: FlightResult, names: list[str]) -> None:
-    """Each vehicle flew >= MIN_CELLS distinct cells of its own, learnt cells only the others flew over
+def assert_searched_shared_and_home(r: FlightResult, names: list[str], min_cells: int = MIN_CELLS) -> None:
+    """Each vehicle flew >= `min_cells` distinct cells of its own, learnt cells only the others flew over
     (their knowledge crossed), got its end action and stands landed near home."""
     shape = (r.grid.width, r.grid.height)
     cells = {n: r.cells(n) for n in names}
     for n in names:
-        assert len(cells[n]) >= MIN_CELLS, r.describe()
+        assert len(cells[n]) >= min_cells, r.describe()
         others = set().union(*(cells[m] for m in names if m != n))
         assert cells[n] - others, f"{n} flew only cells the others flew\n{r.describe()}"
         assert r.vehicle(n)["knowledge_received"] > 0, r.describe()
@@ -222,7 +225,9 @@ def test_an_arducopter_killed_mid_mission_the_others_carry_on_and_sigterm_ends_w
 def test_two_px4_vehicles_search_distinct_cells_share_knowledge_and_come_home(flights):
     r = flown(flights, "px4-pair")
     assert (r.rc, r.summary["outcome"]) == (1, "time limit"), r.describe()
-    assert_searched_shared_and_home(r, ["papa", "quebec"])
+    # steered in OFFBOARD, at the pace of its speed limits: no step waited for its timeout
+    assert all(v["error"] is None and v["step_timeouts"] == 0 for v in r.summary["vehicles"]), r.describe()
+    assert_searched_shared_and_home(r, ["papa", "quebec"], min_cells=PX4_MIN_CELLS)
 
 
 @pytest.mark.scenario("mixed")

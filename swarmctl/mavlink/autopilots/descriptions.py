@@ -201,8 +201,8 @@ def px4_decode(custom_mode: int) -> tuple[int, int]:
 
 
 class PX4Autopilot(Autopilot):
-    """PX4 multicopter: flown through MAVSDK in HOLD (AUTO.LOITER) with MAV_CMD_DO_REPOSITION; the stick
-    modes mean the pilot has it."""
+    """PX4 multicopter: flown through MAVSDK in OFFBOARD with a streamed position target, or in HOLD
+    (AUTO.LOITER) with MAV_CMD_DO_REPOSITION where OFFBOARD is not used; the stick modes mean the pilot has it."""
 
     name = "px4"
     label = "PX4"
@@ -240,6 +240,21 @@ class PX4Autopilot(Autopilot):
     # since February 2026 refuses one of them with 9 (../shared/px4/README says GLOBAL_INT; MAVSDK 4.1's
     # goto_location, which it says fails there, sends GLOBAL). GLOBAL_RELATIVE_ALT is refused (SITL: 9).
     reposition_frames = (MAV_FRAME_GLOBAL_INT, MAV_FRAME_GLOBAL)
+    # Steering in OFFBOARD: the position target goes as SET_POSITION_TARGET_GLOBAL_INT (AMSL, yaw left as it
+    # is) through MAVSDK's offboard plugin, which sends it again at 20 Hz from its own thread (PX4 leaves
+    # OFFBOARD when the stream stops for COM_OF_LOSS_T, 1 s). The driver enters OFFBOARD only where it has
+    # read what the vehicle then does (offboard_loss_parameter) and that is one of offboard_loss_safe:
+    # position mode (a pilot's sticks; with no manual control PX4 applies its RC-loss action, NAV_RCL_ACT:
+    # SITL returned), return, land, hold. Else, and after offboard_refusals refused starts in a row, it
+    # repositions (MAV_CMD_DO_REPOSITION in HOLD).
+    offboard_loss_parameter = "COM_OBL_RC_ACT"
+    offboard_loss_safe = frozenset({0, 3, 4, 5})
+    offboard_refusals = 3
+    # reached: horizontally within the mission's reach tolerance, vertically within the larger of it and
+    # this: PX4 SITL's altitude estimate wandered up to 1.9 m either side of the target in a steady hover
+    # (GLOBAL_POSITION_INT at 10 Hz), so a 3-D 0.5 m tolerance was met late or never (docs/mavlink.md,
+    # "Where a PX4 round's time went")
+    reach_vertical_m = 2.0
     # the API (offboard) link of SITL instance N sends to UDP 14540 + N for N 0..9, and to 14549 above 9
     # (px4-rc.mavlink: "use the same ports for more than 10 instances")
     api_port_base, api_port_wrapped, api_instances = 14540, 14549, 10
@@ -265,6 +280,16 @@ class PX4Autopilot(Autopilot):
                 1: "return",
                 2: "land",
                 3: "return at critical level, land at emergency level",
+            },
+            "COM_OBL_RC_ACT": {  # the setpoint stream of OFFBOARD lost for COM_OF_LOSS_T
+                0: "position mode (without manual control: the RC-loss action, NAV_RCL_ACT)",
+                1: "altitude mode",
+                2: "stabilized mode",
+                3: "return",
+                4: "land",
+                5: "hold",
+                6: "terminate (motors off)",
+                7: "disarm (motors off)",
             },
             "GF_ACTION": {
                 0: "nothing",

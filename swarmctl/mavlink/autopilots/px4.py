@@ -11,6 +11,15 @@ Every PX4/MAVSDK quirk the controller depends on lives here (checked against PX4
 - Ready means a position, home, and MAVSDK's health for the local and global position estimates and
   home; "armable" was seen never to come on simulators, so arming is retried instead of waited for.
 - Takeoff altitude is the MIS_TAKEOFF_ALT parameter (`set_takeoff_altitude`; PX4's default 2.5 m).
+- A position target goes out in OFFBOARD where the vehicle allows it (descriptions.PX4: its
+  COM_OBL_RC_ACT, read during the take-off, says it holds, returns or lands when the stream stops):
+  SET_POSITION_TARGET_GLOBAL_INT with an AMSL altitude through MAVSDK's offboard plugin, which repeats
+  it at 20 Hz from its own thread and stops at the first heartbeat that is not OFFBOARD from 3 s after
+  `start()` on. The first target is followed by `start()` (the mode change, acknowledged); the next
+  ones go out at once without an answer (`goto_nowait`). A refused start falls back to the reposition
+  below for that target, and after PX4.offboard_refusals in a row for good. The driver never takes the
+  vehicle from a pilot's mode (PX4.is_pilot_mode): a target given then is kept and not sent. `reached`
+  is horizontal, with PX4.reach_vertical_m of slack in height (SITL's altitude estimate wanders 1.9 m).
 - The reposition is MAV_CMD_DO_REPOSITION as COMMAND_INT with an AMSL altitude (home AMSL + the height
   above home), sent through MavlinkDirect with its COMMAND_ACK read here: MAVSDK's own command sender
   (goto_location, MavlinkDirect.send_command) cannot take an UNSUPPORTED_MAV_FRAME answer (send_command
@@ -35,10 +44,10 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from swarmctl.mavlink.autopilots.descriptions import PX4, REPOSITION_FRAME_REFUSED
-from swarmctl.mavlink.codec import Endpoint, parse_connection
+from swarmctl.mavlink.codec import Endpoint, distance_m, parse_connection
 from swarmctl.mavlink.errors import (
     CommandRejected,
     CommandTimeout,
@@ -48,6 +57,9 @@ from swarmctl.mavlink.errors import (
 )
 from swarmctl.mavlink.network import MAV, cancel_tasks
 from swarmctl.mavlink.vehicle import Home, Odometer, Position, Target, Vehicle
+
+if TYPE_CHECKING:  # pragma: no cover
+    from mavsdk.asyncio.plugins.offboard import OffboardAsync
 
 log = logging.getLogger(__name__)
 _mavsdk_log_installed = False
@@ -60,6 +72,7 @@ _RESULT_NAMES = {REPOSITION_FRAME_REFUSED: "UNSUPPORTED_MAV_FRAME"}
 _FRAME_NAMES = {0: "GLOBAL", 5: "GLOBAL_INT"}
 _COMMAND_ACK_S, _COMMAND_ATTEMPTS = 1.0, 3  # a COMMAND_INT sent through MavlinkDirect: wait, attempts
 _OUTBOX_MAX = 256  # knowledge frames waiting for MAVSDK; more are dropped (the bus has them all the same)
+_PARAMETER_WAIT_S = 5.0  # close() waits this long for a parameter read in flight (MAVSDK gives up after 3 s)
 
 
 def result_name(result: int) -> str:
@@ -111,6 +124,7 @@ class PX4Vehicle(Vehicle):
         name: str | None = None,
         telemetry_rate_hz: float = 5.0,
         arm_retry_period: float = 0.5,
+        offboard: bool = True,
     ):
         self.endpoint = connection if isinstance(connection, Endpoint) else parse_connection(connection)
         self.sysid = sysid
@@ -142,6 +156,16 @@ class PX4Vehicle(Vehicle):
         self._outbox: asyncio.Queue[dict[str, Any]] = asyncio.Queue(_OUTBOX_MAX)
         self._parser = MAV.MAVLink(None)
         self.frames_sent = 0  # knowledge frames MAVSDK sent on the vehicle's link
+        # steering in OFFBOARD (see the module's docstring); `offboard=False`: repositions only
+        self.offboard_wanted = offboard
+        self.steering = "reposition"  # how the last position target went out: "offboard" or "reposition"
+        self.offboard_loss: str | None = None  # what the vehicle does when the stream stops; None: not known
+        self._offboard: OffboardAsync | None = None
+        self._offboard_check: asyncio.Task | None = None  # reads PX4.offboard_loss_parameter (_begin_offboard_check)
+        self._offboard_ok = False  # OFFBOARD may be used: its loss action read and safe, not refused for good
+        self._offboard_started = False  # the driver asked for OFFBOARD and has asked for no other mode since
+        self._offboard_refused = 0  # refused starts in a row
+        self._pilot_warned = ""  # the pilot's mode a target was last held back in
 
     # --- connection --------------------------------------------------------------------------------
 
@@ -325,9 +349,51 @@ class PX4Vehicle(Vehicle):
                 raise
         return float(await self._call(f"reading parameter {name}", self.params.get_param_int, name))
 
+    def _begin_offboard_check(self) -> None:
+        """Read the offboard-loss action in the background, once (the take-off starts it, else the first
+        `goto`; that target and those before the answer go as repositions). Not at connect: MAVSDK reads one
+        parameter at a time, and a parameter the vehicle lacks holds the others up for its 3 s of retries."""
+        if self.offboard_wanted and self._offboard_check is None and self._system is not None:
+            self._offboard_check = asyncio.create_task(self._check_offboard_loss())
+            self._tasks.append(self._offboard_check)
+
+    async def _check_offboard_loss(self) -> None:
+        """Read what the vehicle does when the OFFBOARD setpoint stream stops (PX4.offboard_loss_parameter) and
+        allow OFFBOARD when that is one of PX4.offboard_loss_safe; a parameter that cannot be read allows none."""
+        from mavsdk.asyncio.plugins.offboard import OffboardAsync
+
+        name = PX4.offboard_loss_parameter
+        try:
+            value = await self.read_parameter(name)
+        except MavlinkError as exc:
+            log.info("%s: %s not read (%s): steering by reposition", self.name, name, exc)
+            return
+        self.offboard_loss = PX4.failsafe_action(name, value)
+        if not (value.is_integer() and int(value) in PX4.offboard_loss_safe):
+            log.warning(
+                "%s: %s %g (%s) is not a safe end for a lost OFFBOARD setpoint stream: steering by reposition "
+                "(set it to 5, hold, or 3, return, to steer in OFFBOARD)",
+                self.name, name, value, self.offboard_loss,
+            )  # fmt: skip
+            return
+        self._offboard = OffboardAsync(self._system)
+        self._offboard_ok = True
+        log.info("%s: steers in OFFBOARD; if its setpoint stream stops: %s (%s %g)", self.name, self.offboard_loss,
+                 name, value)  # fmt: skip
+
     async def close(self) -> None:
+        self._offboard_started = False
+        check = self._offboard_check
+        if check is not None and not check.done():
+            # its parameter read is a blocking MAVSDK call in the loop's executor: destroying MAVSDK under it
+            # leaves that thread blocked for good (and asyncio.run waiting for it); it ends within MAVSDK's
+            # retries (3 s where the vehicle lacks the parameter)
+            await asyncio.wait({check}, timeout=_PARAMETER_WAIT_S)
         await cancel_tasks(self._tasks)
         self._tasks = []
+        if self._offboard is not None:
+            self._offboard.destroy()
+            self._offboard = None
         if self.direct is not None:
             self.direct.destroy()
             self.direct = None
@@ -342,6 +408,7 @@ class PX4Vehicle(Vehicle):
         name = mode.upper()
         if name not in actions:
             raise ValueError(f"PX4 mode {mode!r} is not supported here; use one of {', '.join(actions)}")
+        self._offboard_started = False  # MAVSDK's stream stops by itself once the vehicle has left OFFBOARD
         await self._call(f"set mode {name}", getattr(self.action, actions[name]))
 
     async def _send_arm(self) -> None:
@@ -362,13 +429,100 @@ class PX4Vehicle(Vehicle):
         # A loaded SITL sometimes takes the take-off and then disarms on the ground in HOLD (its
         # pre-flight auto-disarm): `arm_and_takeoff` arms and sends it again (takeoff_attempts)
         await self._call("takeoff", self.action.takeoff)
+        self._begin_offboard_check()  # answered during the climb
 
     async def goto(self, lat: float, lon: float, rel_alt: float) -> None:
+        """The position target in OFFBOARD (entering it when the vehicle is not in it yet) where the driver
+        steers in OFFBOARD, else as a reposition; kept but not sent while a pilot's mode is reported."""
         home = self._home
         if home is None:
             raise MavlinkError(f"{self.name}: no home position yet, cannot convert to AMSL")
         self.target = Target(lat, lon, rel_alt)
-        await self.reposition(lat, lon, home.alt_amsl + rel_alt)
+        if self._pilot_has_it():
+            return
+        alt = home.alt_amsl + rel_alt
+        self._begin_offboard_check()
+        if self._offboard_ok and self._set_point(lat, lon, alt):
+            if self._in_offboard() or await self._start_offboard():
+                return
+        await self.reposition(lat, lon, alt)
+        self.steering = "reposition"
+
+    def goto_nowait(self, lat: float, lon: float, rel_alt: float) -> bool:
+        """In OFFBOARD (entered by `goto`): the new position target goes out at once, no answer awaited; False
+        otherwise (use `goto`)."""
+        home = self._home
+        if home is None or not self._in_offboard():  # (a pilot's mode is not OFFBOARD: `goto` keeps the target)
+            return False
+        if not self._set_point(lat, lon, home.alt_amsl + rel_alt):
+            return False
+        self.target = Target(lat, lon, rel_alt)
+        return True
+
+    def reached(self, tolerance: float = 1.0) -> bool:
+        """Within `tolerance` metres of the target horizontally and within the larger of it and
+        PX4.reach_vertical_m vertically (PX4 SITL's altitude estimate wanders up to 1.9 m in a steady hover)."""
+        pos, tgt = self.position, self.target
+        if pos is None or tgt is None:
+            return False
+        memo = self._reached_memo
+        if memo is not None and memo[0] is pos and memo[1] is tgt and memo[2] == tolerance:
+            return memo[3]
+        horizontal = distance_m(pos.lat, pos.lon, tgt.lat, tgt.lon)
+        answer = horizontal <= tolerance and abs(pos.rel_alt - tgt.rel_alt) <= max(tolerance, PX4.reach_vertical_m)
+        self._reached_memo = (pos, tgt, tolerance, answer)
+        return answer
+
+    def _pilot_has_it(self) -> bool:
+        """A pilot's mode is reported: no target is sent (the controller marks the takeover itself)."""
+        mode = self._mode
+        if not PX4.is_pilot_mode(mode):
+            self._pilot_warned = ""
+            return False
+        if self._pilot_warned != mode:
+            self._pilot_warned = mode
+            log.warning("%s: in %s, a pilot's mode: the position target is not sent", self.name, mode)
+        return True
+
+    def _in_offboard(self) -> bool:
+        """The driver entered OFFBOARD and the vehicle still reports it."""
+        return self._offboard_started and self._mode == "OFFBOARD"
+
+    def _set_point(self, lat: float, lon: float, alt_amsl: float) -> bool:
+        """Hand MAVSDK the OFFBOARD position target (AMSL, yaw as it is); it sends it now and repeats it at
+        20 Hz. A blocking C call that waits for nothing from the vehicle. False when MAVSDK refuses it."""
+        from mavsdk.plugins.offboard import PositionGlobalYaw
+
+        if self._offboard is None:
+            return False
+        target = PositionGlobalYaw(lat, lon, alt_amsl, math.nan, PositionGlobalYaw.AltitudeType.AMSL)
+        try:
+            self._offboard._plugin.set_position_global(target)  # the blocking plugin under the asyncio one
+        except Exception as exc:  # OffboardError: no system, connection error
+            log.info("%s: MAVSDK did not take the OFFBOARD position target: %s", self.name, exc)
+            return False
+        return True
+
+    async def _start_offboard(self) -> bool:
+        """Ask for OFFBOARD (MAVSDK's `start`: the mode change, acknowledged); False when refused. After
+        PX4.offboard_refusals refusals in a row the driver steers by reposition for good."""
+        assert self._offboard is not None
+        try:
+            await self._call("offboard start", self._offboard.start)
+        except MavlinkError as exc:
+            self._offboard_refused += 1
+            log.warning("%s: OFFBOARD refused (%s), repositioning instead", self.name, exc)
+            if self._offboard_refused >= PX4.offboard_refusals:
+                self._offboard_ok = False
+                log.warning("%s: OFFBOARD refused %d times in a row: steering by reposition", self.name,
+                            self._offboard_refused)  # fmt: skip
+            return False
+        if self.steering != "offboard":
+            log.info("%s: in OFFBOARD", self.name)
+        self._offboard_refused = 0
+        self._offboard_started = True
+        self.steering = "offboard"
+        return True
 
     async def reposition(self, lat: float, lon: float, alt_amsl: float) -> None:
         """MAV_CMD_DO_REPOSITION as COMMAND_INT (what goto_location sends, but sent through MavlinkDirect:
@@ -459,9 +613,11 @@ class PX4Vehicle(Vehicle):
                 log.info("%s: MAVSDK did not send a knowledge frame: %s", self.name, exc)
 
     async def land(self) -> None:
+        self._offboard_started = False
         await self._call("land", self.action.land)
 
     async def rtl(self) -> None:
+        self._offboard_started = False
         await self._call("return_to_launch", self.action.return_to_launch)
 
     async def resume(self) -> None:
