@@ -20,7 +20,7 @@ from swarmctl.geo.cli import plan_command  # noqa: E402
 from swarmctl.learn.cli import eval_command, train_command, train_search_command  # noqa: E402
 from swarmctl.mission.cli import agent_command, demo_command, fly_command  # noqa: E402
 from swarmctl.replay.cli import replay_command  # noqa: E402
-from swarmctl.sim.cli import mock_vehicle_command  # noqa: E402
+from swarmctl.sim.cli import mock_relay_command, mock_vehicle_command  # noqa: E402
 
 for command in (
     eval_command,
@@ -29,6 +29,7 @@ for command in (
     bench_command,
     plan_command,
     mock_vehicle_command,
+    mock_relay_command,
     demo_command,
     fly_command,
     agent_command,

@@ -27,6 +27,7 @@ from swarmctl.sim.autopilot import MockAutopilot
 from swarmctl.sim.detector import FOV_CELLS, SimDetector
 from swarmctl.sim.mock_runner import MockRunner
 from swarmctl.sim.radio import Radio
+from swarmctl.sim.relay import LinkFaults, LossyRelay
 from swarmctl.world.channel import Channel
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -109,7 +110,11 @@ class SimSwarm:
     # this area would have it, reaching the grid's fence from the launch cell (at least the default 300 m)
     fence_radius: float | None = None
     carry_detectors: bool = True
+    # each vehicle's MAVLink link through a LossyRelay with these faults each way (None: direct); the
+    # relays' seeds follow the mocks'
+    link_faults: LinkFaults | None = None
     mocks: list[MockAutopilot] = field(default_factory=list)
+    relays: list[LossyRelay] = field(default_factory=list)
     detectors: list[SimDetector] = field(default_factory=list)
     specs: list[VehicleSpec] = field(default_factory=list)
     radio: Radio | None = None
@@ -135,6 +140,8 @@ class SimSwarm:
                 if autopilot_named(autopilot).own_connection:  # a PX4: MAVSDK on a UDP port of its own
                     port = free_udp_port()
                     connect, connection = f"udpout:127.0.0.1:{port}", f"udpin:127.0.0.1:{port}"
+                    if self.link_faults is not None:  # the mock sends to the relay, the relay to MAVSDK
+                        connect = f"udpout:127.0.0.1:{self._relay(('127.0.0.1', port), i).port}"
                     if self.carry_detectors:
                         detector = ("127.0.0.1", free_udp_port())
                 else:
@@ -148,7 +155,7 @@ class SimSwarm:
                     ready_after=2.0,
                     gcs_failsafe_timeout=self.gcs_failsafe,
                     speed=self.speed,
-                    seed=self.seed * 1000 + i,
+                    seed=self._mock_seed(i),
                     params=self.params,
                 )
                 if "FENCE_RADIUS" in mock.params:  # ArduPilot's circle fence round home
@@ -168,7 +175,11 @@ class SimSwarm:
                 mock.start(self.runner)
                 self.mocks.append(mock)
                 if connection is None:
-                    connection = f"udpout:127.0.0.1:{mock.local_port}"
+                    mock_port = mock.local_port
+                    assert mock_port is not None  # a started UDP mock
+                    if self.link_faults is not None:  # the controller sends to the relay, the relay to the mock
+                        mock_port = self._relay(("127.0.0.1", mock_port), i).port
+                    connection = f"udpout:127.0.0.1:{mock_port}"
                 if not self.carry_detectors:
                     sensor = None
                 else:
@@ -181,6 +192,14 @@ class SimSwarm:
             self.stop()
             raise
         return self
+
+    def _mock_seed(self, i: int) -> int:
+        return self.seed * 1000 + i
+
+    def _relay(self, target: tuple[str, int], i: int) -> LossyRelay:
+        relay = LossyRelay(target, self.link_faults, seed=self._mock_seed(i))
+        self.relays.append(relay)  # before it starts: stop() closes it whatever happens
+        return relay.start()
 
     def _fence_radius(self, lat: float, lon: float) -> float:
         if self.fence_radius is not None:
@@ -227,6 +246,8 @@ class SimSwarm:
             self.runner.stop()
         for d in self.detectors:
             d.close()
+        for r in self.relays:
+            r.stop()
         if self.radio is not None:
             self.radio.close()
 
