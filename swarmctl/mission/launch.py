@@ -41,7 +41,7 @@ log = logging.getLogger(__name__)
 
 NOTE_REPEAT_S = 10.0  # a preflight note repeated within this long is not shown again
 FRESH_REPORT_S = 2.0  # a rejoin waits this long at most for a position report from after the link came back
-POLL_S = 0.05
+FRESH_POLL_S = 0.05  # how often a rejoin looks for that report
 
 
 class Launch:
@@ -228,7 +228,7 @@ class Launch:
         old = a.vehicle.position
         deadline = time.monotonic() + timeout
         while a.vehicle.position is old and time.monotonic() < deadline and not self.state.stopping:
-            await asyncio.sleep(POLL_S)
+            await asyncio.sleep(FRESH_POLL_S)
         return a.vehicle.position
 
     async def rejoin(self, a: Agent) -> None:
