@@ -182,7 +182,6 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
 @click.option("--progress/--no-progress", default=True)
 def train_command(seed, out, init, device, resume, progress, **kwargs):
     """Train the shared Q-network with DDQL and write a checkpoint with its config and metadata."""
-    import torch
 
     from swarmctl.learn.ddql import train
 
@@ -209,19 +208,11 @@ def train_command(seed, out, init, device, resume, progress, **kwargs):
         require(init.is_file(), f"--init {init}: no such checkpoint file")
     writable_file(out, "--out")
     writable_file(out.with_suffix(".csv"), "--out")
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
+    device = _device(device)
     cfg = TrainConfig(**settings)
     stop = _stop_on_signals()
     meta = train(world, cfg, seed, out, init=init, device=device, progress=progress, resume=resume, stop=stop)
-    if meta.get("stopped"):
-        click.echo(
-            f"stopped after {meta['episodes']} episodes; saved {out} and its replay: continue with the same "
-            "command and --resume",
-            err=True,
-        )
-        raise click.exceptions.Exit(130)
+    _exit_if_stopped(meta, out, "its replay")
     final = meta["final_eval"] or {}
     click.echo(
         f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates); "
@@ -299,7 +290,6 @@ SEARCH_WORLD = ("window", "fov", "variant", "remove_taken")  # the observation; 
 def train_search_command(out, device, resume, tensorboard, progress, **kwargs):
     """Train the shared Q-network with the search recipe: team reward, deep Q-learning from the coordinated
     planner's demonstrations and DAgger labels, a curriculum opened by competence (swarmctl.learn.search_recipe)."""
-    import torch
 
     from swarmctl.learn.search_recipe import train
 
@@ -324,18 +314,10 @@ def train_search_command(out, device, resume, tensorboard, progress, **kwargs):
         )
     writable_file(out, "--out")
     writable_file(out.with_suffix(".csv"), "--out")
-    if device == "auto":
-        device = "cuda" if torch.cuda.is_available() else "cpu"
-    require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
+    device = _device(device)
     stop = _stop_on_signals()
     meta = train(world, cfg, out, device=device, progress=progress, resume=resume, stop=stop, tensorboard=tensorboard)
-    if meta.get("stopped"):
-        click.echo(
-            f"stopped after {meta['episodes']} episodes; saved {out} and its stores: continue with the same "
-            "command and --resume",
-            err=True,
-        )
-        raise click.exceptions.Exit(130)
+    _exit_if_stopped(meta, out, "its stores")
     final = meta["final_eval"] or {}
     click.echo(
         f"wrote {out} ({meta['wall_time_s']:.0f} s, {meta['samples']} samples, {meta['updates']} updates, "
@@ -349,6 +331,27 @@ def train_search_command(out, device, resume, tensorboard, progress, **kwargs):
             f"test {name}: success {row['success_rate']:.3f} (teacher {teacher['success_rate']:.3f}), "
             f"mean steps {row['mean_steps']:.2f} (teacher {teacher['mean_steps']:.2f})"
         )
+
+
+def _device(device: str) -> str:
+    """--device as torch names it: auto is cuda where there is one, else cpu."""
+    import torch
+
+    if device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    require(device != "cuda" or torch.cuda.is_available(), "--device cuda: no CUDA device here; use --device cpu")
+    return device
+
+
+def _exit_if_stopped(meta: dict, out: Path, kept: str) -> None:
+    """A run stopped by a signal says what it saved and how to go on, and exits 130."""
+    if meta.get("stopped"):
+        click.echo(
+            f"stopped after {meta['episodes']} episodes; saved {out} and {kept}: continue with the same command "
+            "and --resume",
+            err=True,
+        )
+        raise click.exceptions.Exit(130)
 
 
 def _stop_on_signals():

@@ -449,6 +449,29 @@ def _resume_state(state: Progress, target_net, optimizer, replay: ReplayMemory, 
     }
 
 
+def resume_snapshot(out: Path) -> tuple[QNet, dict, dict]:
+    """A stopped run's checkpoint: its network, its info and the state it saved to resume (InputError,
+    one line, when it holds none)."""
+    net, info = load_checkpoint(out)
+    snapshot = info.get("resume")
+    if not snapshot:
+        raise InputError(
+            f"{out}: holds no state to resume (the run finished, or was not saved to resume); "
+            "train without --resume, or give the checkpoint of a stopped run"
+        )
+    return net, info, snapshot
+
+
+def same_options(out: Path, saved: dict, wanted: dict) -> None:
+    """A resumed run goes on with its own options: InputError naming the first of `wanted` (name ->
+    value) that its checkpoint's train config `saved` has otherwise."""
+    for key, value in wanted.items():
+        if saved.get(key) != value:
+            raise InputError(
+                f"{out}: was trained with {key} = {saved.get(key)!r}, not {value!r}; resume with the run's own options"
+            )
+
+
 def _resume(
     out: Path,
     q_net,
@@ -461,20 +484,9 @@ def _resume(
 ) -> tuple[Progress, int]:
     """Load a stopped run's state into the fresh networks, optimiser, replay and generator; returns the
     counters and how many random episodes must refill a lost replay (0 when it was found)."""
-    net, info = load_checkpoint(out)
-    snapshot = info.get("resume")
-    if not snapshot:
-        raise InputError(
-            f"{out}: holds no state to resume (the run finished, or was not saved to resume); "
-            "train without --resume, or give the checkpoint of a stopped run"
-        )
-    train_cfg = info.get("train") or {}
-    for key in ("parallel_envs", "batch_size", "replay_capacity", "curriculum", "rules", "exploration"):
-        if train_cfg.get(key) != getattr(cfg, key):
-            raise InputError(
-                f"{out}: was trained with {key} = {train_cfg.get(key)!r}, not {getattr(cfg, key)!r}; "
-                "resume with the run's own options"
-            )
+    net, info, snapshot = resume_snapshot(out)
+    keys = ("parallel_envs", "batch_size", "replay_capacity", "curriculum", "rules", "exploration")
+    same_options(out, info.get("train") or {}, {key: getattr(cfg, key) for key in keys})
     q_net.load_state_dict(net.state_dict())
     target_net.load_state_dict(snapshot["target"])
     optimizer.load_state_dict(snapshot["optimizer"])

@@ -51,12 +51,21 @@ import torch.nn.functional as F
 from tqdm import tqdm
 
 from swarmctl.errors import InputError, ScenarioError
-from swarmctl.learn.ddql import LAYOUT, PREFILL_EPISODE_OFFSET, TRAIN_EPISODE_OFFSET, best_path, git_commit, replay_path
+from swarmctl.learn.ddql import (
+    LAYOUT,
+    PREFILL_EPISODE_OFFSET,
+    TRAIN_EPISODE_OFFSET,
+    best_path,
+    git_commit,
+    replay_path,
+    resume_snapshot,
+    same_options,
+)
 from swarmctl.learn.evaluate import run_policy
 from swarmctl.learn.kernels import fuse_conv_relu, keep_freed_memory, twin_forward
 from swarmctl.learn.search_config import SearchConfig, SearchStage, StageWorld, refuse_held_out
 from swarmctl.policy.base import allowed_moves, softmax_sample
-from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
+from swarmctl.policy.checkpoint import save_checkpoint
 from swarmctl.policy.coordinated import CoordinatedPolicy
 from swarmctl.policy.fused import to_memory_format
 from swarmctl.policy.hover import NO
@@ -929,20 +938,9 @@ class SearchTrainer:
     def resume(self) -> None:
         """Load a stopped run's state from its checkpoint (`out`) and stores (replay_path(out)); stores
         that are lost are rebuilt: the demonstrations recorded again, the student's empty."""
-        net, info = load_checkpoint(self.out)
-        snapshot = info.get("resume")
-        if not snapshot:
-            raise InputError(
-                f"{self.out}: holds no state to resume (the run finished, or was not saved to resume); train "
-                "without --resume, or give the checkpoint of a stopped run"
-            )
+        net, info, snapshot = resume_snapshot(self.out)
         saved = info.get("train") or {}
-        for key, value in asdict(self.cfg).items():
-            if key not in RESUME_FREE and saved.get(key) != value:
-                raise InputError(
-                    f"{self.out}: was trained with {key} = {saved.get(key)!r}, not {value!r}; resume with the run's "
-                    "own options"
-                )
+        same_options(self.out, saved, {k: v for k, v in asdict(self.cfg).items() if k not in RESUME_FREE})
         if saved.get("recipe") != self.rules or info["world"] != self.world.as_dict():
             raise InputError(f"{self.out}: was trained on another world or rules; resume with the run's own options")
         self.q_net.load_state_dict(net.state_dict())

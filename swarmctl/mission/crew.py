@@ -39,9 +39,6 @@ class Crew:
         if a.enter(state) or extra:
             self.rec.event("state", vehicle=a.name, sysid=a.spec.sysid, state=state, cell=a.cell, **extra)
 
-    def live(self) -> list[Agent]:
-        return [a for a in self.agents if a.live]
-
     def held(self, exclude: Agent | None = None) -> set[Cell]:
         """The cells vehicles hold: this process's agents (but `exclude`) and the vehicles of other
         processes known through the knowledge channel."""
