@@ -7,13 +7,15 @@ from __future__ import annotations
 import asyncio
 import io
 import json
+from collections import Counter
 
 import pytest
 
 from swarmctl.cli import main
 from swarmctl.errors import InputError
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT, PX4
-from swarmctl.mission.failsafes import Failsafe, read, refusal
+from swarmctl.mavlink.errors import CommandTimeout
+from swarmctl.mission.failsafes import FAILSAFE_READS, Failsafe, read, refusal
 from swarmctl.sim.swarm import SimSwarm
 from tests.mission_support import fly, small_grid, small_mission
 
@@ -109,3 +111,30 @@ def test_the_refusal_names_an_unreadable_parameter_and_the_fix():
 
     found = asyncio.run(read(Silent(), fence=False))
     assert set(found) == {"link", "battery"} and found["link"].off and found["link"].value is None
+
+
+class UnansweredVehicle:
+    """A vehicle each of whose parameters goes unanswered the first `silent` reads, then is answered 1."""
+
+    name, autopilot_info = "alpha", ARDUPILOT
+
+    def __init__(self, silent: int):
+        self.silent, self.reads = silent, Counter[str]()
+
+    async def read_parameter(self, name: str) -> float:
+        self.reads[name] += 1
+        if self.reads[name] <= self.silent:
+            raise CommandTimeout(f"reading parameter {name}", self.name, 6, 1.0)
+        return 1.0
+
+
+@pytest.mark.parametrize("silent", [FAILSAFE_READS - 1, FAILSAFE_READS])
+def test_a_failsafe_parameter_left_unanswered_is_read_again(silent):
+    """Silence on a lossy link is not a refusal: it is read again, FAILSAFE_READS times in all."""
+    vehicle = UnansweredVehicle(silent)
+    link = asyncio.run(read(vehicle, fence=False))["link"]
+    assert vehicle.reads["FS_GCS_ENABLE"] == min(silent + 1, FAILSAFE_READS)
+    if silent < FAILSAFE_READS:
+        assert link.value == 1.0 and not link.off
+    else:
+        assert link.value is None and link.off and "after 6 attempts" in link.error

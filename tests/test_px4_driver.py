@@ -328,13 +328,15 @@ def test_the_mock_px4_returns_at_rtl_return_alt_and_holds_once_disarmed_as_px4_s
                 await link.command(6, REPOSITION, (-1, 1, 0, math.nan, lat, lon, HOME[2] + 6))  # COMMAND_LONG: degrees
                 await link.wait_until(lambda: distance_m(m.lat, m.lon, lat, lon) < 1, 10, "the reposition", "px4")
                 await link.command(6, MAV.MAV_CMD_NAV_RETURN_TO_LAUNCH, ())
-                top, modes = 0.0, []
-                while m.armed or not modes:
-                    top = max(top, m.rel_alt)
-                    if not modes or modes[-1] != m.mode_name:
-                        modes.append(m.mode_name)
+                top, modes, armed = 0.0, [], True
+                while armed or len(modes) < 2:
+                    with m._lock:  # the landing disarms and switches mode in one physics step
+                        armed, mode, top = m.armed, m.mode_name, max(top, m.rel_alt)
+                    if not modes or modes[-1] != mode:
+                        modes.append(mode)
+                    if not armed:
+                        break
                     await asyncio.sleep(0.02)
-                modes.append(m.mode_name)
                 # the mock's state is read directly; its STATUSTEXT comes over the link, a little later
                 landed = lambda: "Disarmed by landing" in link.peer(6).texts_since(0)  # noqa: E731
                 await link.wait_until(landed, 2, '"Disarmed by landing"', "px4")

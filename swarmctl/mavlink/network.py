@@ -11,7 +11,7 @@ per vehicle cost more than the parsing: at 50 vehicles about 1,300 datagrams a s
 link's thread (docs/mavlink.md); nor a watch of their own, which woke the loop once per datagram. A
 message goes only to the listeners registered for its type (or for every message), and batch listeners
 (the recorder's tap) take the messages of the links they listen to a batch at a time (once per drain).
-Everything else (state, waits, command retries, the 1 Hz heartbeat) runs as coroutines on the loop, and
+Everything else (state, waits, command retries, the 2 Hz heartbeat) runs as coroutines on the loop, and
 one timer of the loop checks every link for link loss. Sending is a non-blocking datagram/serial write
 under a lock. A slow or silent vehicle only makes its own coroutines wait, never the others.
 
@@ -66,7 +66,12 @@ _UNSIGNED_OK = {MAV.MAVLINK_MSG_ID_RADIO_STATUS}
 _RADIO_STATUS = MAV.MAVLINK_MSG_ID_RADIO_STATUS
 _HEARTBEAT = MAV.MAVLINK_MSG_ID_HEARTBEAT
 EVENTS_KEEP = 1000  # link events kept in MavlinkLink.events (the oldest go)
-LOST_AFTER_S = 3.0  # a vehicle silent (no heartbeat) this long is lost (MavlinkLink's lost_after, the replay's)
+# a vehicle whose autopilot is silent this long is lost (MavlinkLink's lost_after, the replay's)
+LOST_AFTER_S = 3.0
+# The controller's heartbeat. ArduCopter's GCS failsafe (FS_GCS_TIMEOUT, 5 s by default) counts only the
+# heartbeats of its GCS: at 1 Hz, on a link losing 20 % each way, one of 3 vehicles missed 5 s of them
+# and returned home in a 90 s search (tools/lossy_links.py); at 2 Hz that takes 9 lost in a row.
+HEARTBEAT_PERIOD_S = 0.5
 
 # Signing link ids of the open links of this process: each signs as a stream of its own.
 _link_ids: dict[int, object] = {}
@@ -123,6 +128,7 @@ class Peer:
     compid: int = 1
     heartbeat: Any = None
     last_heartbeat: float = 0.0  # time.monotonic()
+    last_heard: float = 0.0  # the last frame of its autopilot component (its heartbeat or any other)
     lost: bool = False
     announced: bool = False  # its "seen" event has been given (events start with it)
     messages: dict[str, Any] = field(default_factory=dict)
@@ -163,7 +169,7 @@ class MavlinkLink:
         signing_key: bytes | None = None,
         accept_unsigned: bool = False,
         heartbeat_type: int = MAV.MAV_TYPE_GCS,
-        heartbeat_period: float = 1.0,
+        heartbeat_period: float = HEARTBEAT_PERIOD_S,
         lost_after: float = LOST_AFTER_S,
         link_id: int | None = None,
         expect: Iterable[int] = (),
@@ -384,6 +390,12 @@ class MavlinkLink:
                 self._heartbeat(msg, src, now)
             peer = peers.get(src)
             if peer is not None:
+                if header.srcComponent == peer.compid and not peer.lost and peer.heartbeat is not None:
+                    # any frame of its autopilot keeps the link up: with 1 Hz heartbeats alone, a link
+                    # losing 20 % gave 3 false losses in a 90 s search of 3 vehicles (tools/lossy_links.py).
+                    # A lost one is back only with a heartbeat: its mode and armed state are the heartbeat's,
+                    # and the rejoin reads them.
+                    peer.last_heard = now
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
@@ -454,10 +466,16 @@ class MavlinkLink:
         peer = self.peers.get(src)
         if peer is None:
             peer = self.peers[src] = Peer(sysid=src)
-        back = peer.lost or peer.heartbeat is None
+        first = peer.heartbeat is None
         peer.compid = msg.get_srcComponent()
-        peer.heartbeat, peer.last_heartbeat, peer.lost = msg, now, False
-        if back and src in self.expected:
+        peer.heartbeat, peer.last_heartbeat, peer.last_heard = msg, now, now
+        if first or peer.lost:
+            self._back(peer, src)
+
+    def _back(self, peer: Peer, src: int) -> None:
+        """The vehicle is heard (again): not lost, and its "back" (or first, "seen") event."""
+        peer.lost = False
+        if src in self.expected:
             self._link_event(peer, "back")
 
     def _check_waiters(self, msg: Any) -> None:
@@ -605,9 +623,10 @@ class MavlinkLink:
             await asyncio.sleep(self.heartbeat_period)
 
     def _check_heartbeats(self, now: float) -> None:
-        """A vehicle whose last heartbeat is more than lost_after old is lost (called every WATCHDOG_S)."""
+        """A vehicle whose autopilot has sent nothing (no heartbeat, no other frame) for more than
+        lost_after is lost (called every WATCHDOG_S)."""
         for p in list(self.peers.values()):
-            if not p.lost and p.heartbeat is not None and now - p.last_heartbeat > self.lost_after:
+            if not p.lost and p.heartbeat is not None and now - p.last_heard > self.lost_after:
                 # _listener_failed judges a vehicle whose listener failed the same way
                 p.lost = True
                 if p.sysid in self.expected:

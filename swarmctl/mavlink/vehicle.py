@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 
 from swarmctl.mavlink.autopilots.base import Autopilot
 from swarmctl.mavlink.codec import EARTH_RADIUS_M, distance_m
-from swarmctl.mavlink.errors import CommandRejected, MavlinkError, NotReady, WaitTimeout
+from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, NotReady, WaitTimeout
 from swarmctl.mavlink.limits import AIRBORNE_M, FlightLimits
 
 log = logging.getLogger(__name__)
@@ -279,7 +279,9 @@ class Vehicle(abc.ABC):
 
     async def arm(self, timeout: float = 30.0) -> None:
         """Arm, retrying every `arm_retry_period` while the autopilot still refuses with what its
-        description calls "not ready yet" (`retries_arm`) until timeout; then wait for the armed state."""
+        description calls "not ready yet" (`retries_arm`) until timeout; then wait for the armed state.
+        An arm left unanswered may have gone through with its answers lost: the armed state says so,
+        else it is sent again until timeout."""
         info = self.autopilot_info
         assert info is not None
         deadline = time.monotonic() + timeout
@@ -292,6 +294,12 @@ class Vehicle(abc.ABC):
                     raise
                 self._log.info("%s: arming refused (%s), retrying", self.name, self._refusal(exc))
                 await asyncio.sleep(self.arm_retry_period)
+            except CommandTimeout as exc:
+                if await self._shows(lambda: self.armed, self.arm_retry_period):
+                    self._log.info("%s: %s, but the vehicle reports it is armed", self.name, exc)
+                    break
+                if time.monotonic() > deadline:
+                    raise
         await self._poll(lambda: self.armed, 3.0, self.armed_report)
 
     @abc.abstractmethod
@@ -446,6 +454,15 @@ class Vehicle(abc.ABC):
         # has been seen 1.25 m above the ground it had landed and disarmed on
         pos = self.position
         return not self.armed and (pos is None or pos.rel_alt < 1.0 or self.on_ground)
+
+    async def _shows(self, cond: Callable[[], bool], timeout: float) -> bool:
+        """Whether the vehicle's reports show cond() within timeout seconds: what an unanswered command
+        did (its answers may be what was lost)."""
+        try:
+            await self._poll(cond, timeout, "")
+        except WaitTimeout:
+            return False
+        return True
 
     async def _poll(self, cond, timeout: float, what: str, period: float = 0.05) -> None:
         deadline = time.monotonic() + timeout

@@ -50,6 +50,7 @@ from swarmctl.mavlink.transport import Transport, UdpTransport, open_transport, 
 from swarmctl.signing import setup_signing
 from swarmctl.sim.boot import Boot
 from swarmctl.sim.fence import MockFence
+from swarmctl.sim.mock_base import dropping
 from swarmctl.sim.mock_commands import MockCommands
 from swarmctl.sim.mock_flight import MockFlight
 from swarmctl.sim.mock_telemetry import MockTelemetry
@@ -148,6 +149,7 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         self.forced_results: dict[int, int] = {}  # command -> MAV_RESULT to answer with
         self._drop_commands: dict[int, int | None] = {}  # command -> how many to ignore (None: all)
         self._drop_sent: dict[str, int | None] = {}  # message type -> how many not to send (None: all)
+        self._drop_received: dict[str, int | None] = {}  # message type -> how many to ignore (None: all)
         self._forget: dict[int, int] = {}  # message id -> SET_MESSAGE_INTERVAL requests to acknowledge and forget
         # observation for tests
         # the latest messages addressed to us, (type, src sysid, command or 0), and the answers given
@@ -329,6 +331,14 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         else:
             self._drop_sent[mtype] = count
 
+    def drop_received(self, mtype: str, count: int | None = 1) -> None:
+        """Ignore the next `count` messages of this type addressed to the vehicle, as if lost on the way,
+        e.g. "SET_POSITION_TARGET_GLOBAL_INT" (None: all of them; 0: take them again)."""
+        if count == 0:
+            self._drop_received.pop(mtype, None)
+        else:
+            self._drop_received[mtype] = count
+
     def forget_intervals(self, mtype: str, count: int = 1) -> None:
         """Acknowledge the next `count` SET_MESSAGE_INTERVAL for this message type ACCEPTED and then not
         stream it, as ArduCopter SITL does with a request sent before its first heartbeat."""
@@ -442,13 +452,7 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         """Pack, sign and deliver one message (subject to the loss/latency/blackout faults)."""
         if self.mav is None:
             return
-        mtype = msg.get_type()
-        if mtype in self._drop_sent:
-            left = self._drop_sent[mtype]
-            if left is None or left > 1:
-                self._drop_sent[mtype] = None if left is None else left - 1
-            else:
-                del self._drop_sent[mtype]
+        if dropping(self._drop_sent, msg.get_type()):
             return
         now = time.monotonic()
         self.mav.send(msg)

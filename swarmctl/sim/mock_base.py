@@ -7,13 +7,27 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.sim.autopilot import MockAutopilot
     from swarmctl.sim.boot import Boot
     from swarmctl.sim.fence import MockFence
     from swarmctl.sim.personality import Personality
+
+K = TypeVar("K")
+
+
+def dropping(drops: dict[K, int | None], key: K) -> bool:
+    """Whether this message is one to drop (`drops`: key -> how many more, None: all), counting it."""
+    if key not in drops:
+        return False
+    left = drops[key]
+    if left is None or left > 1:
+        drops[key] = None if left is None else left - 1
+    else:
+        del drops[key]
+    return True
 
 
 class MockBase:
@@ -41,6 +55,7 @@ class MockBase:
     _no_heartbeat_until: float
     _glitch: tuple[float, float, float] | None
     _drop_commands: dict[int, int | None]
+    _drop_received: dict[str, int | None]
     _forget: dict[int, int]
     _console_after_heartbeat: bytes
     # observation for tests

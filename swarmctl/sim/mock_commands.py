@@ -13,7 +13,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.mavlink.codec import from_deg_e7, offset_m, to_deg_e7
 from swarmctl.mavlink.transport import valid_frame
 from swarmctl.sim.fence import FENCE
-from swarmctl.sim.mock_base import MockBase
+from swarmctl.sim.mock_base import MockBase, dropping
 from swarmctl.sim.mock_telemetry import STREAMABLE
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -39,6 +39,8 @@ class MockCommands(MockBase):
             return  # our own echo (several vehicles on one channel)
         if not self._for_me(msg):
             self.ignored += 1  # addressed to another vehicle on the same channel
+            return
+        if dropping(self._drop_received, mtype):
             return
         cmd = getattr(msg, "command", 0) if mtype in ("COMMAND_LONG", "COMMAND_INT") else 0
         self.received.append((mtype, msg.get_srcSystem(), cmd))

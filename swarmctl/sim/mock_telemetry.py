@@ -39,8 +39,11 @@ STREAMABLE = frozenset(
         MAV.MAVLINK_MSG_ID_GPS_RAW_INT,
         MAV.MAVLINK_MSG_ID_EKF_STATUS_REPORT,
         MAV.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN,
+        MAV.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT,
     }
 )
+# POSITION_TARGET_GLOBAL_INT as ArduCopter sends it: the position only (every other field ignored)
+_TARGET_POSITION_ONLY = 0xFFF8
 
 
 class MockTelemetry(MockBase):
@@ -182,6 +185,28 @@ class MockTelemetry(MockBase):
             )
         if msg_id == MAV.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return self.mav.extended_sys_state_encode(MAV.MAV_VTOL_STATE_UNDEFINED, self._landed_state())
+        if msg_id == MAV.MAVLINK_MSG_ID_POSITION_TARGET_GLOBAL_INT:
+            # ArduCopter reports the target its mode flies to (GUIDED: the last one taken), AMSL, and
+            # nothing in a mode without one (GCS_MAVLINK_Copter::send_position_target_global_int)
+            if self.target is None or not self.armed or self.mode_name not in self.personality.target_modes:
+                return None
+            lat, lon, rel_alt = self.target
+            return self.mav.position_target_global_int_encode(
+                self._time_boot_ms(),
+                MAV.MAV_FRAME_GLOBAL,
+                _TARGET_POSITION_ONLY,
+                to_deg_e7(lat),
+                to_deg_e7(lon),
+                home_alt + rel_alt,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
         if msg_id == MAV.MAVLINK_MSG_ID_HEARTBEAT:
             return self._heartbeat()
         if msg_id == MAV.MAVLINK_MSG_ID_AUTOPILOT_VERSION:

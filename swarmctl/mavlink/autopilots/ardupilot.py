@@ -12,7 +12,9 @@ Sequence (as ArduCopter 4.7 SITL showed it, docs/mavlink.md):
   GUIDED can arm). Its STATUSTEXTs are reported meanwhile; a timeout names the last reason.
 - arm -> MAV_CMD_NAV_TAKEOFF to the altitude above home -> wait for the altitude ->
   SET_POSITION_TARGET_GLOBAL_INT (frame GLOBAL_RELATIVE_ALT_INT, position-only type_mask 3576) ->
-  LAND or RTL.
+  LAND or RTL. A position target has no ack; ArduCopter reports the target it flies to
+  (POSITION_TARGET_GLOBAL_INT, asked for with the first one), so a lost one is sent again as soon as two
+  reports show the old target, and once a second while none confirms it.
 The speed parameters (descriptions.ARDUPILOT.limit_parameters) are read with PARAM_REQUEST_READ. A
 geofence goes up with the mission protocol (mission_type FENCE) and is switched on with
 MAV_CMD_DO_FENCE_ENABLE (see upload_fence).
@@ -31,7 +33,7 @@ from typing import Any
 
 from swarmctl.geo.fence import farthest_metres
 from swarmctl.mavlink.autopilots.descriptions import ARDUPILOT
-from swarmctl.mavlink.codec import from_deg_e7, to_deg_e7
+from swarmctl.mavlink.codec import distance_m, from_deg_e7, to_deg_e7
 from swarmctl.mavlink.errors import CommandRejected, CommandTimeout, MavlinkError, WaitTimeout
 from swarmctl.mavlink.network import MAV, MavlinkLink
 from swarmctl.mavlink.vehicle import Home, Odometer, Position, ReadyWait, Target, Vehicle
@@ -50,6 +52,20 @@ PREARM_LAG_S = 1.0
 # asked for again: SITL starts its streams 1.4 s after the first heartbeat
 STREAM_PATIENCE_S = 3.0
 KEEP_TELEMETRY_S = 1.0  # how often the driver looks for telemetry that is overdue (patience: 3 s)
+# a position target is sent again after this long while no report of the vehicle's target confirms it
+TARGET_RESEND_S = 1.0
+# ... and at once when this many of its target reports since it was sent show another target: the first
+# may have left the vehicle before the target reached it
+STALE_TARGET_REPORTS = 2
+TARGET_MATCH_M = 0.3  # a reported target this close (horizontally) to the one sent is that one (cm rounding)
+TARGET_REPORT_ASKS = 3  # a vehicle asked this often that never reports its target is not asked again
+# PARAM_REQUEST_READ is sent this many more times without an answer (6 in all: on a link losing 20 % each
+# way a read goes unanswered 4 times in a row once in 60, and the GCS failsafe's refuses the mission);
+# ArduPilot answers no name it does not have, so that case costs 2 s more than with 3
+PARAMETER_RETRIES = 5
+# after a take-off unanswered, how long the vehicle has to show its climb (ArduCopter: the motors spool
+# up first) before the take-off is sent again
+TAKEOFF_SHOWS_S = 3.0
 _WARNING = MAV.MAV_SEVERITY_WARNING  # STATUSTEXTs this severe or worse are reasons (PreArm:, Arm:, ...)
 
 
@@ -69,6 +85,7 @@ class Stream:
     rate_hz: float | None  # None: the vehicle's telemetry rate
     required: bool = True  # a vehicle refusing it cannot be flown; otherwise the check it serves is skipped
     after_ekf: bool = False  # sent only once home is set: expected once the EKF has an absolute position
+    while_guided: bool = False  # sent only while flying to a target in GUIDED: expected once one is sent
 
     @property
     def msg_id(self) -> int:
@@ -82,6 +99,10 @@ TELEMETRY = (
     Stream("GPS_RAW_INT", 1.0, required=False),  # readiness: the GPS fix
     Stream("HOME_POSITION", 0.5, after_ekf=True),  # home, which ArduCopter sets again at arming
 )
+
+# the target the vehicle flies to (ArduCopter: GCS_MAVLINK_Copter::send_position_target_global_int, AMSL,
+# for a mode with a target), the receipt of a position target; asked for with the first target sent
+TARGET_REPORTS = Stream("POSITION_TARGET_GLOBAL_INT", None, required=False, while_guided=True)
 
 _UPLOAD_ANSWERS = ("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK")
 
@@ -128,19 +149,23 @@ class ArduPilotVehicle(Vehicle):
         telemetry_rate_hz: float = 5.0,
         command_timeout: float = 1.0,
         retries: int = 3,
+        parameter_retries: int = PARAMETER_RETRIES,
         mission_timeout: float = 1.5,
         owns_link: bool = False,
     ):
         self.link, self.sysid = link, sysid
         self.name = name or f"vehicle {sysid}"
         self.telemetry_rate_hz = telemetry_rate_hz
-        self.command_timeout, self.retries = command_timeout, retries
+        self.command_timeout, self.retries, self.parameter_retries = command_timeout, retries, parameter_retries
         # mission protocol: longer than ArduPilot's own 1 s re-request, so resends do not race it
         self.mission_timeout = mission_timeout
         self.owns_link = owns_link
         self.target: Target | None = None
         self.odometer = Odometer()
         self._target_sent = 0.0
+        self._target_confirmed = False  # a report of the vehicle's target has shown the one sent last
+        self._stale_reports = 0  # reports of its target showing another one since (sent, or confirmed)
+        self.resent: Counter[str] = Counter()  # position targets sent again: "stale" (reports), "silent" (none)
         self._telemetry_timer: asyncio.TimerHandle | None = None  # the check for overdue telemetry
         self._asking: asyncio.Task | None = None  # asking again for overdue telemetry
         self.unsupported: set[str] = set()  # telemetry messages the vehicle refused to stream
@@ -191,6 +216,7 @@ class ArduPilotVehicle(Vehicle):
         if not self._listening:
             self.link.add_listener(self._on_position, ("GLOBAL_POSITION_INT",))
             self.link.add_listener(self._on_heartbeat, ("HEARTBEAT",))
+            self.link.add_listener(self._on_target_report, (TARGET_REPORTS.name,))
             self._listening = True
         await self.request_telemetry()
         if self._telemetry_timer is None:
@@ -201,6 +227,17 @@ class ArduPilotVehicle(Vehicle):
         if msg._header.srcSystem == self.sysid and (msg.lat != 0 or msg.lon != 0):  # 0, 0: no position yet
             self.odometer.add_fix(msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0)
             self._position_reported()
+
+    def _on_target_report(self, msg: MAV.MAVLink_position_target_global_int_message) -> None:
+        """The vehicle's report of the target it flies to, against the one sent last."""
+        t = self.target
+        if msg._header.srcSystem != self.sysid or t is None or not self._target_sent:
+            return
+        there = distance_m(from_deg_e7(msg.lat_int), from_deg_e7(msg.lon_int), t.lat, t.lon)
+        if there <= TARGET_MATCH_M:
+            self._target_confirmed, self._stale_reports = True, 0
+        else:
+            self._stale_reports += 1
 
     def _on_heartbeat(self, msg: Any) -> None:
         """This vehicle's mode changes, with when they were first reported."""
@@ -229,6 +266,10 @@ class ArduPilotVehicle(Vehicle):
                     raise
                 self.unsupported.add(stream.name)
                 log.info("%s: no %s (%s)", self.name, stream.name, exc.result)
+            except CommandTimeout as exc:
+                # the request may have gone through with its answers lost; whether the message comes is
+                # what counts, and one that does not is asked for again (_keep_telemetry)
+                log.info("%s: %s; asked again if %s does not come", self.name, exc, stream.name)
             self._asked[stream.name] = time.monotonic()
 
     def overdue(self, stream: Stream, now: float) -> bool:
@@ -239,6 +280,10 @@ class ArduPilotVehicle(Vehicle):
         if peer is None or stream.name in self.unsupported:
             return False
         since = 0.0
+        if stream.while_guided:
+            if not self._target_sent or not self.armed or self.mode != ARDUPILOT.command_mode:
+                return False
+            since = self._target_sent
         if stream.after_ekf and "EKF_STATUS_REPORT" not in self.unsupported:
             if not self._ekf_ok(fresh=True):
                 self._expected_since.pop(stream.name, None)
@@ -257,11 +302,29 @@ class ArduPilotVehicle(Vehicle):
             return
         now = time.monotonic()
         due = [s for s in TELEMETRY if self.overdue(s, now)]
+        if TARGET_REPORTS.name in self._asked and self.overdue(TARGET_REPORTS, now):
+            if self._gives_up(TARGET_REPORTS):
+                log.info(
+                    "%s: no %s after %d requests: position targets are confirmed by none",
+                    self.name,
+                    TARGET_REPORTS.name,
+                    self.requests[TARGET_REPORTS.name],
+                )
+            else:
+                due.append(TARGET_REPORTS)
         if due:
             self._asking = asyncio.ensure_future(self._ask_again(due))
 
-    async def _ask_again(self, due: list[Stream]) -> None:
-        log.info("%s: asking again for %s", self.name, ", ".join(s.name for s in due))
+    def _gives_up(self, stream: Stream) -> bool:
+        """A stream asked for TARGET_REPORT_ASKS times and never received is not asked for again (a firmware
+        that takes the request but does not send it): True when it is given up now."""
+        if self.requests[stream.name] < TARGET_REPORT_ASKS or stream.name in self.link.peer(self.sysid).received_at:
+            return False
+        self.unsupported.add(stream.name)
+        return True
+
+    async def _ask_again(self, due: list[Stream], again: bool = True) -> None:
+        log.info("%s: asking%s for %s", self.name, " again" if again else "", ", ".join(s.name for s in due))
         try:
             await self.request_telemetry(due)
         except MavlinkError as exc:
@@ -338,10 +401,12 @@ class ArduPilotVehicle(Vehicle):
         ):
             try:
                 await self.set_mode(ARDUPILOT.command_mode)
-            except (CommandRejected, WaitTimeout) as exc:  # e.g. firmware that wants a position first
+            except (CommandRejected, CommandTimeout, WaitTimeout) as exc:  # e.g. firmware that wants a position
                 wait.refused = time.monotonic()
                 if isinstance(exc, CommandRejected):
                     wait.reason = f"{exc.command} {ARDUPILOT.command_mode} refused: {exc.result}"
+                elif isinstance(exc, CommandTimeout):
+                    wait.reason = f"mode {ARDUPILOT.command_mode} not answered ({self.mode})"
                 else:
                     wait.reason = f"mode {ARDUPILOT.command_mode} accepted but not reported ({self.mode})"
                 wait.say(wait.reason + ", asking again")
@@ -363,7 +428,14 @@ class ArduPilotVehicle(Vehicle):
         name = mode.upper()
         number = ARDUPILOT.custom_mode(name)  # ValueError naming the known modes
         param2, param3 = ARDUPILOT.set_mode_params(name)
-        await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), param2, param3)
+        try:
+            await self._command(MAV.MAV_CMD_DO_SET_MODE, float(MAV.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), param2, param3)
+        except CommandTimeout as exc:
+            # unanswered, perhaps taken with its answers lost: the heartbeat's mode says which
+            if not await self._shows(lambda: self._custom_mode() == number, timeout):
+                raise exc from None
+            log.info("%s: %s, but the vehicle reports %s", self.name, exc, name)
+            return
         await self._poll(lambda: self._custom_mode() == number, timeout, f"mode {name}")
 
     async def _send_arm(self) -> None:
@@ -377,7 +449,7 @@ class ArduPilotVehicle(Vehicle):
         """PARAM_REQUEST_READ by name (CommandTimeout when unanswered: ArduPilot does not answer a name
         it does not have)."""
         return await self.link.read_param(
-            self.sysid, name, timeout=self.command_timeout, retries=self.retries, vehicle=self.name
+            self.sysid, name, timeout=self.command_timeout, retries=self.parameter_retries, vehicle=self.name
         )
 
     async def takeoff(self, rel_alt: float) -> None:
@@ -392,7 +464,18 @@ class ArduPilotVehicle(Vehicle):
                 raise
 
     async def _take_off(self, rel_alt: float, left: Callable[[], float]) -> None:
-        await self.takeoff(rel_alt)
+        climbing = lambda: self.armed and (p := self.position) is not None and p.rel_alt > 0.3  # noqa: E731
+        while True:
+            try:
+                await self.takeoff(rel_alt)
+                break
+            except CommandTimeout as exc:
+                # unanswered, perhaps taken with its answers lost: the climb says which; else again
+                if await self._shows(climbing, min(TAKEOFF_SHOWS_S, left())):
+                    log.info("%s: %s, but the vehicle climbs", self.name, exc)
+                    break
+                if left() <= self.command_timeout * (1 + self.retries):
+                    raise exc from None
         # a report of 0, 0 (no position) can come between the ready check and now, from the vehicle or
         # in its name: wait for a real one instead of failing on it
         await self._aim_above(rel_alt, left(), "after take-off")
@@ -409,6 +492,9 @@ class ArduPilotVehicle(Vehicle):
     def _send_target(self) -> None:
         t = self.target
         assert t is not None
+        if TARGET_REPORTS.name not in self._asked and (self._asking is None or self._asking.done()):
+            self._asked[TARGET_REPORTS.name] = time.monotonic()  # asked once, here; later as any stream
+            self._asking = asyncio.ensure_future(self._ask_again([TARGET_REPORTS], again=False))
         peer = self.link.peer(self.sysid)
         self.link.send(
             self.link.mav.set_position_target_global_int_encode(
@@ -431,15 +517,18 @@ class ArduPilotVehicle(Vehicle):
             )
         )
         self._target_sent = time.monotonic()
+        self._target_confirmed, self._stale_reports = False, 0
 
     async def _on_wait(self) -> None:
-        # A lost SET_POSITION_TARGET has no ack: resend it once a second while waiting in GUIDED.
-        if (
-            self.target is not None
-            and self.mode == ARDUPILOT.command_mode
-            and self._target_sent
-            and time.monotonic() - self._target_sent > 1.0
-        ):
+        # SET_POSITION_TARGET has no ack: while waiting in GUIDED it is sent again when the vehicle's
+        # reports of its target show another one, or once a second while none has shown this one
+        if self.target is None or self.mode != ARDUPILOT.command_mode or not self._target_sent:
+            return
+        if self._stale_reports >= STALE_TARGET_REPORTS:
+            self.resent["stale"] += 1
+            self._send_target()
+        elif not self._target_confirmed and time.monotonic() - self._target_sent > TARGET_RESEND_S:
+            self.resent["silent"] += 1
             self._send_target()
 
     async def land(self) -> None:
@@ -571,6 +660,7 @@ class ArduPilotVehicle(Vehicle):
         if self._listening:
             self.link.remove_listener(self._on_position)
             self.link.remove_listener(self._on_heartbeat)
+            self.link.remove_listener(self._on_target_report)
             self._listening = False
         if self.owns_link:
             await self.link.close()
