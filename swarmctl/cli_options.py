@@ -147,6 +147,8 @@ def _option(cls: type, name: str, override: Mapping[str, Any]) -> Callable:
         attrs["type"] = real(
             meta.get("lo"), meta.get("hi"), above=meta.get("above", False), below=meta.get("below", False)
         )
+    elif kind is str:
+        attrs["type"] = click.STRING
     else:
         raise ValueError(f"{cls.__name__}.{name}: no option for a {kind} field")
     attrs.update(override)

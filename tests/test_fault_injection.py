@@ -72,3 +72,41 @@ def test_a_fault_in_the_live_table_turns_it_off_and_the_search_goes_on(monkeypat
     faults = [e for e in recorded if e["event"] == "fault"]
     assert len(faults) == 1 and faults[0]["part"] == "live view"
     assert [v["end_action"] for v in summary["vehicles"]] == ["rtl", "rtl"]
+
+
+def test_a_fault_in_the_live_pages_server_answers_500_and_the_search_flies_on(monkeypatch, tmp_path):
+    import threading
+    import urllib.error
+    import urllib.request
+
+    from swarmctl.mission.web import LiveSite
+    from swarmctl.mission.web_page import WebSetup
+
+    monkeypatch.setattr(LiveSite, "snapshot", failing(LiveSite.snapshot, 1))
+    answers: list[int] = []
+    askers: list[threading.Thread] = []
+
+    def ask(url: str) -> None:  # on the controller's loop: the requests come from a thread
+        def get() -> None:
+            for _ in range(3):
+                try:
+                    urllib.request.urlopen(url.split("#")[0] + "live/state", timeout=10)
+                except urllib.error.HTTPError as exc:
+                    answers.append(exc.code)
+
+        askers.append(threading.Thread(target=get, daemon=True))
+        askers[-1].start()
+
+    with SimSwarm(small_grid(), uavs=2, seed=3, speedup=60.0) as swarm:
+        plan = swarm.plan("frontier", end_action="rtl", time_limit=20.0, **FAST)
+        setup = WebSetup("127.0.0.1", 0, "a-token-for-this-test-only-0123")
+        code, summary = run_controller(plan, tmp_path, None, web=setup, on_web=ask)
+        for mock in swarm.mocks:
+            mock.wait_for(lambda m: not m.state().armed, 60)
+    askers[0].join(10)
+    assert answers == [500, 500, 500]
+    assert summary["fault"] is None  # the mission was not stopped by it
+    assert summary["outcome"] in ("complete", "time limit") and summary["steps"] > 3
+    faults = [e for e in lines(tmp_path) if e["event"] == "fault"]
+    assert len(faults) == 1 and faults[0]["part"] == "web page" and faults[0]["error"].startswith("Injected")
+    assert [v["end_action"] for v in summary["vehicles"]] == ["rtl", "rtl"]

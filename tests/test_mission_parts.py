@@ -101,6 +101,30 @@ def test_a_stop_cancels_what_waits_for_it_and_keeps_the_first_refusal():
     assert str(state.mission_error) == "first" and state.outcome == "failed"
 
 
+def test_the_operators_pause_holds_a_waiter_until_resume_or_stop_and_leaves_the_clock_out():
+    """What a rejoining vehicle waits on (Launch.rejoin): the pause, not a round."""
+
+    async def scenario():
+        state = MissionState()
+        state.search_started = time.monotonic()
+        await asyncio.wait_for(state.while_held(), 1)  # not paused: at once
+        assert state.hold() and not state.hold()
+        waiter = asyncio.ensure_future(state.while_held(poll=0.01))
+        await asyncio.sleep(0.5)
+        held = not waiter.done()
+        assert state.resume() and not state.resume()
+        await asyncio.wait_for(waiter, 1)
+        clock = state.search_seconds()
+        state.hold()
+        stopped = asyncio.ensure_future(state.while_held(poll=0.01))
+        state.stop()
+        await asyncio.wait_for(stopped, 1)
+        return held, clock
+
+    held, clock = run(scenario())
+    assert held and clock < 0.5  # the 0.5 s paused is not search time
+
+
 def test_spawned_tasks_are_kept_until_done_and_the_late_ones_cancelled_at_the_end():
     async def scenario():
         state = MissionState()

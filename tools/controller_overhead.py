@@ -28,6 +28,12 @@ log CPU on log vehicles over the sizes of 12 and more, and 50 vehicles' CPU over
 With --runs N each size is flown N times, back to back, and the table gives the minimum and the median
 of the per-run means, with the machine's load average (1 min) before each run: on a shared machine
 the minimum is the figure least disturbed by other work.
+
+With --web each flight is flown twice, alternately without and with the live page (`--web`,
+swarmctl.mission.web) served and open: a client in another process asks for it as the page does (the
+page, its setup, every track once, then the state POLL_MS apart). A second table sets the two side by
+side: the loop thread's CPU per round, and the controller process's CPU over the whole flight per
+round (the page's answers between rounds included), each with the change the page makes.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import argparse
 import asyncio
 import json
 import os
+import secrets
 import sys
 import tempfile
 import time
@@ -48,7 +55,8 @@ from swarmctl.bench import cpu_model  # noqa: E402
 from swarmctl.geo.grid import GeoGrid  # noqa: E402
 from swarmctl.mission.controller import Controller  # noqa: E402
 from swarmctl.mission.recorder import Recorder  # noqa: E402
-from swarmctl.mission.service import keep_summary  # noqa: E402
+from swarmctl.mission.service import keep_summary, live_site  # noqa: E402
+from swarmctl.mission.web_page import WebSetup  # noqa: E402
 from swarmctl.sim.swarm import SimSwarm, sim_plan  # noqa: E402
 
 
@@ -93,8 +101,31 @@ def split_cpus() -> tuple[set[int], set[int]]:
     return set(cpus[:-1]), {cpus[-1]}
 
 
+def _open_page(url: str, stop) -> None:
+    """Child process: the live page's requests, as an open page makes them, until `stop` is set."""
+    import urllib.request
+
+    from swarmctl.mission.web_page import POLL_MS
+
+    base = url.split("#")[0]
+    for path in ("", "draw.js", "live.js", "live/setup", "live/state?tracks=1"):
+        urllib.request.urlopen(base + path, timeout=10).read()
+    while not stop.wait(POLL_MS / 1000):
+        try:
+            urllib.request.urlopen(base + "live/state", timeout=10).read()
+        except OSError:
+            return  # the mission ended and its page with it
+
+
 def measure(
-    size: int, policy: str, search: float, speedup: float, seed: int, same_process: bool, own_cpu: bool = False
+    size: int,
+    policy: str,
+    search: float,
+    speedup: float,
+    seed: int,
+    same_process: bool,
+    own_cpu: bool = False,
+    web: bool = False,
 ) -> dict:
     import multiprocessing as mp
 
@@ -118,14 +149,27 @@ def measure(
         controller = Controller(plan, rec)
 
         async def fly() -> str:  # with the running summary.json, as fly and demo keep it
+            site = page = None
+            stop = mp.get_context("spawn").Event()
+            if web:
+                site = live_site(controller, WebSetup("127.0.0.1", 0, secrets.token_urlsafe(24)))
+                url = await site.start()
+                page = mp.get_context("spawn").Process(target=_open_page, args=(url, stop))
+                page.start()
             summaries = asyncio.ensure_future(keep_summary(controller, rec))
             try:
                 return await controller.run()
             finally:
                 summaries.cancel()
                 await asyncio.gather(summaries, return_exceptions=True)
+                if page is not None:
+                    stop.set()
+                    page.join(10)
+                if site is not None:
+                    await site.close()
 
         started = time.monotonic()
+        cpu0 = time.process_time()
         try:
             outcome = asyncio.run(fly())
         finally:
@@ -138,7 +182,10 @@ def measure(
                 parent.send("stop")
                 child.join(30)
         took = time.monotonic() - started
+        flight_cpu = time.process_time() - cpu0
         return dict(
+            web=web,
+            flight_cpu_per_round=round(1000 * flight_cpu / max(controller.step, 1), 3),
             vehicles=size,
             policy=policy,
             mocks="same process" if same_process else "child process" + (" on its own CPU" if own_cpu else ""),
@@ -188,6 +235,33 @@ def scaling(rows: list[dict]) -> dict:
     return {"exponent": exponent, "sizes": sizes if exponent is not None else [], "ratio_50_3": ratio}
 
 
+def web_table(paged: list[tuple[list[dict], list[dict]]]) -> list[str]:
+    """The live page's cost: per size, over the alternated runs without and with the page, the minimum
+    and the median of the loop thread's CPU per round and of the process's CPU over the flight per round,
+    and the change of the minima (the figures least disturbed by other work)."""
+    import statistics
+
+    lines = [
+        "",
+        "with the live page open (--web; runs alternated): CPU per round, ms, min / median of the runs",
+        "",
+        "| vehicles | runs | loop CPU without | with | change (min) | flight CPU without | with | change (min) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for without, with_page in paged:
+        cells = []
+        for key in ("cpu_mean", "flight_cpu_per_round"):
+            a = [r[key] for r in without if key in r]
+            b = [r[key] for r in with_page if key in r]
+            cells += [
+                f"{min(a):.1f} / {statistics.median(a):.1f}",
+                f"{min(b):.1f} / {statistics.median(b):.1f}",
+                f"{100 * (min(b) - min(a)) / min(a):+.1f} %",
+            ]
+        lines.append(f"| {without[0]['vehicles']} | {len(without)} + {len(with_page)} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[3, 12, 50])
@@ -207,24 +281,29 @@ def main() -> None:
         action="store_true",
         help="run the mocks on the last CPU and the controller on the others (not with --same-process)",
     )
+    ap.add_argument(
+        "--web",
+        action="store_true",
+        help="fly each run twice, alternately without and with the live page served and open, and compare",
+    )
     args = ap.parse_args()
     if args.runs < 1:
         ap.error("--runs must be at least 1")
     if args.own_cpu and args.same_process:
         ap.error("--own-cpu keeps the mocks' process apart: not with --same-process")
     reference = machine_reference_ms()
-    rows = []
+    rows, paged = [], []
     for n in args.sizes:
-        runs = []
+        runs, with_page = [], []
         for _ in range(args.runs):
-            load = os.getloadavg()[0]
-            runs.append(
-                {
-                    **measure(n, args.policy, args.search, args.speedup, args.seed, args.same_process, args.own_cpu),
-                    "load": load,
-                }
-            )
+            for web in (False, True) if args.web else (False,):
+                load = os.getloadavg()[0]
+                how = (args.same_process, args.own_cpu, web)
+                got = measure(n, args.policy, args.search, args.speedup, args.seed, *how)
+                (with_page if web else runs).append({**got, "load": load})
         rows.append(summarise(runs))
+        if with_page:
+            paged.append((runs, with_page))
     lines = [
         f"controller overhead per decision step, policy {args.policy}, mock speed-up {args.speedup:g}x, "
         f"{os.cpu_count()} CPUs, {cpu_model()}, mocks in "
@@ -268,6 +347,8 @@ def main() -> None:
         if growth["ratio_50_3"] is not None:
             parts.append(f"50 vehicles / 3 vehicles {growth['ratio_50_3']:.2f}")
         lines += ["", "growth: " + "; ".join(parts)]
+    if paged:
+        lines += web_table(paged)
     text = "\n".join(lines)
     print(text)
     if args.out is not None:

@@ -54,7 +54,7 @@ TRANSITIONS: dict[State, frozenset[State]] = {
     State.PREFLIGHT: frozenset({State.TAKEOFF}),
     State.TAKEOFF: frozenset({State.SEARCH}),
     State.SEARCH: frozenset({State.HOVER, State.LOST, State.OVERRIDE, State.LOW_BATTERY}),
-    State.HOVER: frozenset({State.LOST, State.OVERRIDE}),
+    State.HOVER: frozenset({State.SEARCH, State.LOST, State.OVERRIDE}),  # search: the operator rejected the find
     State.LOST: frozenset({State.REJOIN, State.OVERRIDE}),
     State.REJOIN: frozenset({State.SEARCH, State.LOST}),
     State.OVERRIDE: frozenset(),
@@ -114,6 +114,7 @@ class Agent:
         self.off_course = 0  # rounds in a row the vehicle was off course
         self.climbed = False  # at the mission altitude since it was first seen commanded
         self.alarm: str | None = None  # what the live table shows (off course)
+        self.sent_home = False  # the operator sent it home (swarmctl.mission.web): its end action is rtl
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
 

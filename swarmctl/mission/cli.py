@@ -17,8 +17,10 @@ import click
 
 import swarmctl
 from swarmctl.bounds import SEED, new_recording_folder, real, whole
+from swarmctl.cli_options import options_from
 from swarmctl.errors import EXIT_FAILED, InputError
 from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, ON_FIND, MissionSpec, MissionTable, TimingTable
+from swarmctl.mission.web_page import WEB_FIELDS, WEB_OVERRIDES, WebOptions, WebSetup, probe, web_setup
 from swarmctl.world.config import CHANNELS, FINISHES
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -77,8 +79,18 @@ def _finish(code: int, folder: Path, summary: dict, quiet: bool) -> None:
 
 
 def view_options(func):
+    """The live table's options, and the live page's (swarmctl.mission.web_page.WebOptions)."""
+    func = options_from(WebOptions, WEB_FIELDS, WEB_OVERRIDES)(func)
     func = click.option("--no-live", is_flag=True, help="No live table; progress lines only (for logs).")(func)
     return click.option("--quiet", "-q", is_flag=True, help="Print nothing while flying.")(func)
+
+
+def web_from(web: str | None, web_token_file: str | None) -> WebSetup | None:
+    """The live page's address and token from --web and --web-token-file (None: no page)."""
+    setup = web_setup(WebOptions(web=web, web_token_file=web_token_file))
+    if setup is not None:
+        probe(setup)
+    return setup
 
 
 @click.command("demo")
@@ -191,6 +203,8 @@ def demo_command(
     on_find: str | None,
     quiet: bool,
     no_live: bool,
+    web: str | None,
+    web_token_file: str | None,
 ) -> None:
     """Fly a search mission with mock vehicles over loopback UDP at the Chicago Loop.
 
@@ -208,6 +222,7 @@ def demo_command(
     from swarmctl.sim.swarm import SimSwarm
     from swarmctl.world.channel import Channel
 
+    page = web_from(web, web_token_file)
     settings: dict[str, Any] = dict(end_action=end_action, time_limit=time_limit)
     if gcs is not None:
         settings["gcs"] = parse_option(GroundStation, gcs, "--gcs")
@@ -279,6 +294,7 @@ def demo_command(
                 "knowledge_bus": c.bus.counters(),
             },
             extra_files={"mission.png": lambda at: draw_mission(at, grid, swarm.targets)},
+            web=page,
         )
     _finish(code, folder, summary, quiet)
 
@@ -328,13 +344,23 @@ def _finish_text(m: MissionTable) -> str:
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the policy's random draws.")
 @view_options
-def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quiet: bool, no_live: bool) -> None:
+def fly_command(
+    mission_file: Path,
+    yes: bool,
+    out: Path | None,
+    seed: int,
+    quiet: bool,
+    no_live: bool,
+    web: str | None,
+    web_token_file: str | None,
+) -> None:
     """Fly a mission with real vehicles (ground mode: this process flies every vehicle)."""
     from swarmctl.mission import failsafes
     from swarmctl.mission.plan import make_plan
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
 
+    page = web_from(web, web_token_file)
     spec = load_spec(mission_file)
     folder = _out_folder(out, spec.mission.name)  # the command line before the mission's contents
     plan = make_plan(spec, seed=seed, mission_file=mission_file)
@@ -343,7 +369,7 @@ def fly_command(mission_file: Path, yes: bool, out: Path | None, seed: int, quie
     if not yes and not click.confirm("Fly this mission?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
+    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet), web=page)
     _finish(code, folder, summary, quiet)
 
 
@@ -376,6 +402,8 @@ def agent_command(
     seed: int,
     quiet: bool,
     no_live: bool,
+    web: str | None,
+    web_token_file: str | None,
 ) -> None:
     """Onboard mode: fly one vehicle (on its companion computer); peers over the [knowledge] channel,
     which the mission must give."""
@@ -384,6 +412,7 @@ def agent_command(
     from swarmctl.mission.service import LiveView, describe, run_controller
     from swarmctl.mission.spec import load_spec
 
+    page = web_from(web, web_token_file)
     spec = load_spec(mission_file)
     folder = _out_folder(out, f"{spec.mission.name}-{'-'.join(vehicles)}")  # the command line first
     plan = make_plan(spec, only=list(vehicles), detector=detector, seed=seed, mission_file=mission_file)
@@ -392,5 +421,5 @@ def agent_command(
     if not yes and not click.confirm("Fly?", default=False):
         click.echo("not flown", err=True)
         raise click.exceptions.Exit(EXIT_FAILED)
-    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet))
+    code, summary = run_controller(plan, folder, LiveView(live=not no_live, quiet=quiet), web=page)
     _finish(code, folder, summary, quiet)

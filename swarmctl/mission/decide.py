@@ -155,21 +155,30 @@ class FieldPolicy:
         return self.decide(self.beliefs(knowledges, step, vehicles, targets_done))
 
 
-def without_targets(beliefs: Beliefs) -> Beliefs:
+def without_targets(beliefs: Beliefs, cells: set[tuple[int, int]] | None = None) -> Beliefs:
     """`beliefs` with every known target done (on_find = "mark": found, reported, not to be flown back
-    to): none in `targets`, and phi_hat without the value they explain, removed as a taken target's
-    (swarmctl.world.taken.remove_taken_targets; what other, unknown targets raise stays). Values stay
-    on the quantised levels, so the recorded inputs decide the same again (replay --verify)."""
+    to), or only those of `cells` (finds the operator rejected): not in `targets`, and phi_hat without
+    the value they explain, removed as a taken target's (swarmctl.world.taken.remove_taken_targets; what
+    other, unknown targets raise stays). Values stay on the quantised levels, so the recorded inputs
+    decide the same again (replay --verify)."""
     targets = beliefs.targets
-    if not np.logical_or.reduce(targets, axis=None):
+    done = targets
+    if cells is not None:
+        w, h = targets.shape[-2], targets.shape[-1]
+        chosen = np.zeros((w, h), dtype=bool)
+        for x, y in cells:
+            if 0 <= x < w and 0 <= y < h:
+                chosen[x, y] = True
+        done = targets & chosen
+    if not np.logical_or.reduce(done, axis=None):
         return beliefs
     s = beliefs.settings
-    phi_hat = remove_taken_targets(beliefs.phi_hat, beliefs.explored, targets, s.sigma2, s.phi_cutoff, s.phi_tolerance)
+    phi_hat = remove_taken_targets(beliefs.phi_hat, beliefs.explored, done, s.sigma2, s.phi_cutoff, s.phi_tolerance)
     return Beliefs(
         beliefs.explored,
         phi_hat,
         beliefs.obstacles,
-        np.zeros(targets.shape, dtype=bool),
+        targets & ~done,
         beliefs.positions,
         beliefs.hovering,
         beliefs.me,

@@ -56,7 +56,7 @@ class Ending:
         action = self.action
         if action == "hover" and a.state is not State.HOVER:
             action = "rtl"  # only vehicles on a target hold; the others come home
-        if a.state is State.LOW_BATTERY:
+        if a.state is State.LOW_BATTERY or a.sent_home:
             action = "rtl"
         a.end_action = action
         try:  # nothing the recording raises may keep the command from the vehicle

@@ -377,12 +377,33 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
     "fault": (
         "events.jsonl",
         "an unexpected error (a bug, or a reply nothing foresaw) in a part of the controller: in the live view "
-        "it is reported and the view turned off; anywhere else the search stops there, and every vehicle in "
-        "the air is given its end action (the traceback is in fault.txt)",
+        "it is reported and the view turned off; in the live page's server it is reported once (that request "
+        "answered 500); anywhere else the search stops there, and every vehicle in the air is given its end "
+        "action (the traceback is in fault.txt)",
         (
-            Field("part", "str", "-", "where: `live view`, or `mission` (the launch, the rounds and what they call)"),
+            Field(
+                "part",
+                "str",
+                "-",
+                "where: `live view`, `web page` (the live page's server: reported, and the search flies on), or "
+                "`mission` (the launch, the rounds and what they call)",
+            ),
             Field("where", "str", "-", "the innermost place in swarmctl it was raised: `file:line in function`"),
             Field("error", "str", "-", "the exception: `Type: message`"),
+        ),
+    ),
+    "operator": (
+        "events.jsonl",
+        "an order the operator gave on the live page (`--web`, swarmctl.mission.web), as the controller took it: "
+        "pause (the vehicles hold, no setpoint goes out, the clock and the time limit stop), resume, end (as "
+        "Ctrl-C: every vehicle's end action), home (one vehicle sent home between rounds), confirm or reject a "
+        "find (a rejected one is no target for this process's policy, hover rule and finish line any more)",
+        (
+            Field("action", "str", "-", "the order", values=("pause", "resume", "end", "home", "confirm", "reject")),
+            Field("source", "str", "-", "where it came from", values=("web",)),
+            _STEP,
+            Field("vehicle", "str", "-", "home: the vehicle sent home", required=False),
+            Field("cell", "cell", "cells", "confirm, reject: the find's cell", required=False),
         ),
     ),
     "recording_lost": (

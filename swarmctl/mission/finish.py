@@ -11,6 +11,10 @@ expected_targets and on_find say (docs/mission.md, "The finish line"), and the f
   4-connected to a cell a vehicle of the mission held (its launch cell, and any cell it flew to or
   rejoined at): the region the swarm can fly over.
 
+With `confirm_finds = true` held and found count only the finds the operator confirmed on the live
+page (MissionState.confirmed), and a search that would end partial waits while a find it holds or
+knows has no word yet; a rejected find (MissionState.rejected) is no target for the line either way.
+
 A find is the first time a target cell enters the swarm's knowledge: a `find` event (the vehicle, the
 cell, its lat/lon, the seconds since the search started and the step), and the summary's `finds`. With
 `on_find = "mark"` the finding vehicle does not hover on it (Rounds.update_states), the policy treats
@@ -99,6 +103,8 @@ def describe(spec: MissionSpec) -> str:
         then = "a vehicle that finds a target reports it (event, STATUSTEXT) and searches on"
     else:
         then = "a vehicle hovers on the first target it finds that nobody holds"
+    if m.confirm_finds and m.finish != "covered":
+        what += " (counting the finds an operator confirms on the live page, --web)"
     return f"finish {m.finish}: {what}; {then}"
 
 
@@ -117,6 +123,7 @@ class FinishLine:
         m = plan.spec.mission
         self.rule: str = m.finish
         self.on_find: str = m.on_find
+        self.confirm: bool = m.confirm_finds  # held and found count the finds the operator confirmed
         self.given: int | None = m.expected_targets
         self.vehicles = vehicles = len(plan.spec.vehicles)
         # N: for held, the vehicle count when left out; for found and covered, None when left out (unknown)
@@ -146,7 +153,15 @@ class FinishLine:
     @property
     def classic(self) -> bool:
         """The default (held, N left out): the paper's rule, decided in Rounds.ended as it always was."""
-        return self.rule == "held" and self.given is None
+        return self.rule == "held" and self.given is None and not self.confirm
+
+    def awaiting(self, cells: set[tuple[int, int]]) -> bool:
+        """With confirm_finds: some of these target cells still wait for the operator's word."""
+        return self.confirm and not cells <= self.state.confirmed | self.state.rejected
+
+    def counted(self, cells: set[tuple[int, int]] | list[tuple[int, int]]) -> int:
+        """How many of these target cells the line counts: all, or with confirm_finds those confirmed."""
+        return len(set(cells) & self.state.confirmed) if self.confirm else len(set(cells))
 
     # --- the swarm's knowledge --------------------------------------------------------------------------
     def hold_cells(self) -> None:
@@ -179,7 +194,9 @@ class FinishLine:
         known = np.logical_and.reduce(
             stacked_field([a.knowledge for a in self.crew.agents], "target_step") == NEVER, axis=0
         )
-        return [(int(x), int(y)) for x, y in np.argwhere(~known)]
+        cells = [(int(x), int(y)) for x, y in np.argwhere(~known)]
+        rejected = self.state.rejected  # the finds the operator rejected (MissionState.judge)
+        return [c for c in cells if c not in rejected] if rejected else cells
 
     def coverage(self) -> tuple[int, int]:
         """(reachable cells explored, reachable cells)."""
@@ -226,10 +243,12 @@ class FinishLine:
             return "complete"
         live = [a for a in self.crew.agents if a.live]
         if live and all(a.state is State.HOVER for a in live) and self.crew.others_hovering():
+            if self.awaiting(self.crew.held_targets()):
+                return None  # the operator has yet to confirm or reject what they hold
             return "partial"  # everyone parked on a target: nobody left to search
         if self.rule == "found" and self.expected is not None:
             done, total = self.coverage()
-            if total and done == total:
+            if total and done == total and not self.awaiting(set(self.known_targets())):
                 return "partial"  # nothing left to find, fewer than expected found
         return None
 
@@ -237,9 +256,9 @@ class FinishLine:
         """Whether the finish line holds now (held with N given, found, covered; the classic rule is
         Rounds.ended's)."""
         if self.rule == "held":
-            return len(self.crew.held_targets()) >= (self.expected or 0)
+            return self.counted(self.crew.held_targets()) >= (self.expected or 0)
         if self.rule == "found" and self.expected is not None:
-            return len(self.known_targets()) >= self.expected
+            return self.counted(self.known_targets()) >= self.expected
         done, total = self.coverage()
         return total > 0 and done == total
 

@@ -238,6 +238,7 @@ class Launch:
         try:
             # what the vehicle reported before its link went is stale: decide on a report from after it
             pos = await self.fresh_position(a)
+            await self.state.while_held()  # the operator's pause: it rejoins on resume
             if a.vehicle.armed and pos is not None and pos.rel_alt > RESUME_ABOVE_M:
                 # still in the air, perhaps returning or landing on its failsafe: take it back there
                 await a.vehicle.resume()
@@ -257,6 +258,7 @@ class Launch:
                     await a.vehicle.arm_and_takeoff(
                         altitude, timeouts.takeoff(timing.takeoff_timeout, a.vehicle, altitude)
                     )
+            await self.state.while_held()  # paused while it took off: it holds there until resume
             pos = a.vehicle.position
             here = self.plan.grid.latlon_to_cell(pos.lat, pos.lon) if pos is not None else a.cell
             if here is None or not self.plan.grid.in_grid(*here):

@@ -17,6 +17,11 @@ Each round, for the agents of this process that are searching:
 6. each vehicle that arrived somewhere new senses (its detector's report for that cell) and every
    live agent shares (a delta of new cells and its position; digests and repairs).
 
+The operator's orders from the live page (swarmctl.mission.web) are taken between rounds: a vehicle
+sent home leaves the search; while the search is paused no round runs and no setpoint goes out (the
+clock and the time limit pause too); a rejected find is no target for the policy or the hover rule,
+and a vehicle hovering on it searches again.
+
 The search ends when every live vehicle hovers on a distinct target ("complete", or "partial" when
 some vehicles dropped out), or at the mission's own finish line (`[mission] finish`, expected_targets:
 swarmctl.mission.finish), when the time limit passes ("time limit"), when no vehicle is left
@@ -33,6 +38,7 @@ import numpy as np
 
 from swarmctl.knowledge.stepping import poll_all
 from swarmctl.mission.agent import Agent, State
+from swarmctl.mission.decide import without_targets
 from swarmctl.mission.state import quietly
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
@@ -49,6 +55,9 @@ if TYPE_CHECKING:
     from swarmctl.mission.state import MissionState
     from swarmctl.mission.watch import Watch
     from swarmctl.world.guard import SafetyGuard
+
+
+HELD_POLL_S = 0.1  # while paused, the rounds look for a resume, a stop or a lost link this often
 
 
 class Rounds:
@@ -84,12 +93,25 @@ class Rounds:
             poll_all([a.exchange for a in self.crew.agents])
             for a in self.crew.agents:
                 a.track()
+            self.obey()
             self.update_states()
+            self.state.holding = self.state.held
+            if self.state.held:  # paused by the operator: no setpoint goes out, not even a re-command
+                outcome = self.ended()
+                if outcome is not None:
+                    self.state.outcome = outcome
+                    return
+                if self.show is not None:
+                    self.show()
+                await self.state.pause(HELD_POLL_S)
+                continue
             await self.watch.check()  # what was not commanded (swarmctl.mission.watch)
             outcome = self.ended()
             if outcome is not None:
                 self.state.outcome = outcome
                 return
+            if self.state.held:  # paused while the watch looked: not one move more
+                continue
             moved = await self.decision_round()
             self.state.times.round.append(time.monotonic() - t0)
             self.state.times.cpu.append(time.thread_time() - cpu0)
@@ -120,9 +142,23 @@ class Rounds:
                 # complete when every vehicle is hovering on a target; partial when some dropped out
                 return "complete" if len(live) == len(self.crew.agents) else "partial"
         assert self.state.search_started is not None  # the rounds run once the search has started
-        if time.monotonic() - self.state.search_started > self.timing.time_limit:
+        if self.state.search_seconds() > self.timing.time_limit:  # the operator's pauses left out
             return "time limit"
         return None
+
+    def obey(self) -> None:
+        """The operator's orders since the last round (MissionState.orders), taken between rounds so that
+        no round sees an agent change under it: "home" sends a searching or hovering vehicle home (its
+        search is over; its end action stays rtl)."""
+        orders, self.state.orders = self.state.orders, []
+        for action, name in orders:
+            a = next((b for b in self.crew.agents if b.name == name), None)
+            if action != "home" or a is None or a.state not in (State.SEARCH, State.HOVER):
+                continue
+            a.sent_home, a.end_action = True, "rtl"
+            self.crew.enter(a, State.ENDED, end_state="returning home (operator)")
+            a.cell = None  # no longer commanded; the guard no longer keeps its cell
+            self.state.spawn(quietly(a.vehicle.rtl()), f"rtl {a.name}")
 
     def update_states(self) -> None:
         """Each agent's own transitions, with their side effects, then the hover rule."""
@@ -143,14 +179,21 @@ class Rounds:
                     self.state.spawn(quietly(a.vehicle.rtl()), f"rtl {a.name}")
                     a.cell = None
                 continue
+            rejected = self.state.rejected
+            if a.state is State.HOVER and a.cell in rejected:  # the operator rejected the find it holds
+                self.crew.enter(a, State.SEARCH)
+                a.exchange.step(self.state.step, a.here, False)  # tell the others the cell is free again
+                continue
             # on_find = "mark": a find is reported and searched past, never hovered on (swarmctl.mission.finish)
             if self.finish.marks:
                 continue
+            known = len(a.knowledge.targets) - (len(rejected & a.knowledge.targets.keys()) if rejected else 0)
             if (
                 a.state is State.SEARCH
                 and a.cell is not None
                 and a.cell in a.knowledge.targets
-                and self.policy.parks(len(a.knowledge.targets), self.crew.vehicles)  # the hover rule
+                and a.cell not in rejected
+                and self.policy.parks(known, self.crew.vehicles)  # the hover rule
             ):
                 hovering = {b.cell for b in self.crew.agents if b is not a and b.state is State.HOVER}
                 hovering |= {p.cell for v, p in a.knowledge.peers.items() if p.on_target and not self.crew.ours(v)}
@@ -168,6 +211,8 @@ class Rounds:
         beliefs = (
             self.policy.beliefs(knowledges, self.state.step, n, targets_done=self.finish.marks) if searching else None
         )
+        if beliefs is not None and self.state.rejected:  # the finds the operator rejected are no targets
+            beliefs = without_targets(beliefs, self.state.rejected)
         choices = self.policy.decide(beliefs) if beliefs is not None else []
         self.state.times.decide.append(time.monotonic() - t)
         proposed = {

@@ -9,6 +9,7 @@ import signal
 import sys
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -25,6 +26,8 @@ from swarmctl.mission.state import MissionState
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.geo.grid import GeoGrid
+    from swarmctl.mission.web import LiveSite
+    from swarmctl.mission.web_page import WebSetup
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +101,7 @@ class LiveView:
             hovering = sum(a.state is State.HOVER for a in agents)
         elapsed = state.search_seconds()
         progress = f"step {state.step}  targets found {found}  hovering {hovering}/{len(agents)}  {elapsed:.1f} s" + (
-            f"  -> {state.outcome}" if state.outcome else ""
+            f"  -> {state.outcome}" if state.outcome else "  PAUSED (live page)" if state.held else ""
         )
         if not self.live:
             for a in agents:
@@ -152,17 +155,47 @@ async def keep_summary(controller: Controller, rec: Recorder, extra_summary: Any
         await asyncio.sleep(SUMMARY_POLL_S)
 
 
+def live_site(controller: Controller, setup: WebSetup) -> LiveSite:
+    """The live page of the controller's mission (swarmctl.mission.web), given the parts it shows."""
+    from swarmctl.mission.web import LiveSite
+
+    plan = controller.plan
+    spec = plan.spec
+    g = controller.grid
+    subtitle = (
+        f"{len(spec.vehicles) if plan.only is None else len(plan.only)} vehicles, "
+        f"{g.width} x {g.height} cells of {g.cell:g} m, "
+        f"policy {plan.policy.spec}, end action {spec.mission.end_action}"
+    )
+    return LiveSite(
+        setup,
+        controller.state,
+        controller.crew,
+        controller.finish,
+        g,
+        controller.rec,
+        name=spec.mission.name,
+        subtitle=subtitle,
+        finish_text=finish.describe(spec),
+        time_limit=spec.timing.time_limit,
+    )
+
+
 def run_controller(
     plan: MissionPlan,
     folder: Path,
     view: LiveView | None,
     extra_summary: Any = None,
     extra_files: dict[str, Any] | None = None,
+    web: WebSetup | None = None,
+    on_web: Callable[[str], None] | None = None,
 ) -> tuple[int, dict]:
     """Fly the plan with SIGINT/SIGTERM wired to a clean stop; write the recording (summary.json kept up
     to date while it flies; `extra_files`: name -> a function of the folder writing that file after the
     summary, as the picture); exit status: the outcome's, or EXIT_RECORDING_LOST when part of the
-    recording could not be written (the summary's `recording_lost` says what)."""
+    recording could not be written (the summary's `recording_lost` says what). `web`: serve the live
+    page there while the mission flies (its address, token included, printed on stderr, or given to
+    `on_web` when there is one)."""
     rec = Recorder(folder, reserve=reserve_for(len(plan.spec.vehicles)))  # no room for the end: refused here
     try:
         rec.copy_inputs(plan.mission_file, plan.spec.mission.grid, plan.grid)
@@ -180,12 +213,22 @@ def run_controller(
                 installed.append(sig)
             except (NotImplementedError, RuntimeError, ValueError):  # not the main thread, or Windows
                 pass
+        site = None
+        if web is not None:
+            site = live_site(controller, web)
+            url = await site.start()  # a port that cannot be served: refused before anything flies
+            if on_web is not None:
+                on_web(url)
+            else:  # the token is printed here only: never logged, never recorded
+                print(f"live page: {url}", file=sys.stderr, flush=True)
         summaries = asyncio.ensure_future(keep_summary(controller, rec, extra_summary))
         try:
             return await controller.run()
         finally:
             summaries.cancel()
             await asyncio.gather(summaries, return_exceptions=True)
+            if site is not None:  # while Ctrl-C still means stop, not an interrupt of the closing
+                await close_site(site)
             for sig in installed:
                 loop.remove_signal_handler(sig)
 
@@ -212,6 +255,18 @@ def run_controller(
     if rec.lost:
         return EXIT_RECORDING_LOST, summary
     return OUTCOME_EXIT.get(outcome, EXIT_FAILED), summary
+
+
+async def close_site(site: LiveSite) -> None:
+    """The mission is over: the page says so for a moment, then its server stops (whatever fails in it)."""
+    from swarmctl.mission.web import LINGER_S
+
+    site.closed = True
+    try:
+        await asyncio.sleep(LINGER_S)
+        await site.close()
+    except Exception as exc:  # the mission's result stands
+        log.warning("the live page's server did not close cleanly: %s: %s", type(exc).__name__, exc)
 
 
 def fault_line(summary: dict, folder: Path) -> str | None:

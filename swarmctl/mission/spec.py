@@ -328,6 +328,11 @@ class MissionTable(Table):
         "what a vehicle does at a target it finds: hold (hover on it to the end) or mark (report it: a find "
         "event, a STATUSTEXT, the summary; and search on); mark needs finish found or covered",
     )
+    confirm_finds: bool = setting(
+        False,
+        "held and found count only the finds an operator confirmed on the live page (--web); rejected finds "
+        "are no targets either way",
+    )
 
     @field_validator("policy")
     @classmethod

@@ -58,7 +58,8 @@ class RoundTimes:
 
 class MissionState:
     """The mission's step, outcome and clock; its stop flag (Ctrl-C, SIGTERM, a refusal), every task it
-    started (kept until done), and the rounds' timings."""
+    started (kept until done), the rounds' timings, and the operator's pause and orders (the live page,
+    swarmctl.mission.web)."""
 
     def __init__(self) -> None:
         self.step = 0
@@ -72,13 +73,53 @@ class MissionState:
         self.times = RoundTimes()
         self.tasks: set[asyncio.Task] = set()  # every task started with spawn(), until it is done
         self._stop = asyncio.Event()
+        self.held_since: float | None = None  # the operator paused the search then (None: not paused)
+        self.held_total = 0.0  # seconds the search was paused before that
+        self.holding = False  # the rounds hold now: the round under way when the pause came has ended
+        self.orders: list[tuple[str, str]] = []  # (action, vehicle) the operator asked for, done at the next round
+        # the operator's word on finds: a rejected one is no target for the policy, the hover rule, the finish line
+        self.confirmed: set[tuple[int, int]] = set()
+        self.rejected: set[tuple[int, int]] = set()
 
     # --- the clock ---------------------------------------------------------------------------------------
     def search_seconds(self) -> float:
         """Seconds since the search started (0.0 before it started); at the end, up to when it ended."""
         if self.search_started is None:
             return 0.0
-        return (self.ended or time.monotonic()) - self.search_started
+        now = self.ended or time.monotonic()
+        held = self.held_total + (now - self.held_since if self.held_since is not None else 0.0)
+        return now - self.search_started - held
+
+    # --- the operator's pause: the vehicles hold, and the clock and the time limit with them --------------
+    @property
+    def held(self) -> bool:
+        return self.held_since is not None
+
+    def hold(self) -> bool:
+        """Pause the search (no setpoints until resume); False when it already was."""
+        if self.held_since is not None:
+            return False
+        self.held_since = time.monotonic()
+        return True
+
+    async def while_held(self, poll: float = 0.1) -> None:
+        """Return once the search is not paused (at once when it is not), or the mission is stopped."""
+        while self.held and not self.stopping:
+            await self.pause(poll)
+
+    def judge(self, cell: tuple[int, int], confirmed: bool) -> None:
+        """The operator's word on a find: confirmed, or rejected (no longer a target for this process's
+        policy, hover rule and finish line; a vehicle hovering on it searches again)."""
+        (self.confirmed if confirmed else self.rejected).add(cell)
+        (self.rejected if confirmed else self.confirmed).discard(cell)
+
+    def resume(self) -> bool:
+        """Resume the search; False when it was not paused."""
+        if self.held_since is None:
+            return False
+        self.held_total += time.monotonic() - self.held_since
+        self.held_since = None
+        return True
 
     # --- stopping ----------------------------------------------------------------------------------------
     def stop(self) -> None:

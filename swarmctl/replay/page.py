@@ -24,7 +24,7 @@ import numpy as np
 import shapely
 
 from swarmctl.replay.knowledge import NEVER
-from swarmctl.replay.page_template import PAGE
+from swarmctl.replay.page_template import DRAW_JS, PAGE
 from swarmctl.replay.recording import Replay
 
 MAX_TRACK_POINTS = 1000
@@ -44,6 +44,15 @@ def _rings(wkt: str) -> list[list[list[float]]]:
 
 def _round(a: np.ndarray, digits: int) -> list:
     return [None if not np.isfinite(v) else round(float(v), digits) for v in a]
+
+
+def orders(replay: Replay) -> list[dict]:
+    """The operator's orders from the live page (`operator` lines): the frame of each, and what it was."""
+    out = []
+    for e in replay.events.of("operator") if replay.events is not None else []:
+        what = str(e["action"]) + (f" {e['vehicle']}" if e.get("vehicle") else "")
+        out.append({"frame": replay.frame_of_step(int(e["step"])), "text": f"{what} ({e['source']}, step {e['step']})"})
+    return out
 
 
 def page_data(replay: Replay, basemap: str | None = None, attribution: str = "") -> dict:
@@ -116,6 +125,7 @@ def page_data(replay: Replay, basemap: str | None = None, attribution: str = "")
             for t in replay.targets
         ],
         "hover": hover,
+        "orders": orders(replay),
         "hidden": hidden,
         "basemap": basemap,
         "basemapAttribution": attribution,
@@ -128,7 +138,7 @@ def write_page(replay: Replay, path: Path, basemap: str | None = None, attributi
     # "<" only occurs inside JSON strings, where \u003c means the same: so no recorded text ("</script>",
     # "<!--") can end or change the script element the data sits in.
     data = data.replace("<", "\\u003c")
-    fill = {"__TITLE__": html.escape(f"{replay.name}: replay"), "__DATA__": data}
-    # One pass: text put in for one marker is never searched for the other.
-    path.write_text(re.sub("__TITLE__|__DATA__", lambda m: fill[m.group()], PAGE), encoding="utf-8")
+    fill = {"__TITLE__": html.escape(f"{replay.name}: replay"), "__DATA__": data, "__DRAW__": DRAW_JS}
+    # One pass: text put in for one marker is never searched for the others.
+    path.write_text(re.sub("__TITLE__|__DATA__|__DRAW__", lambda m: fill[m.group()], PAGE), encoding="utf-8")
     return path
