@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -20,6 +21,10 @@ from swarmctl.geo.defaults import (
     MIN_CELL_M,
     UNKNOWN_RULES,
 )
+
+PATTERNS = ("expanding-square", "sector", "parallel")  # swarmctl.geo.patterns.plan_pattern plans each
+DEFAULT_PATTERN_UAVS = 3
+MAX_PATTERN_UAVS = 50
 
 # shapely, pyproj, scipy and matplotlib load inside the command, so other commands start fast.
 
@@ -96,6 +101,26 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
     show_default=True,
     help="Refuse grids with more cells than this.",
 )
+@click.option(
+    "--pattern",
+    type=click.Choice(PATTERNS),
+    default=None,
+    help="Also plan an IAMSAR search pattern from --lkp: one QGroundControl OUT/<vehicle>.plan per vehicle.",
+)
+@click.option("--lkp", default=None, metavar="LAT,LON", help="The last known point, degrees (with --pattern).")
+@click.option(
+    "--uavs",
+    type=whole(1, MAX_PATTERN_UAVS),
+    default=DEFAULT_PATTERN_UAVS,
+    show_default=True,
+    help="Vehicles sharing the pattern (with --pattern).",
+)
+@click.option(
+    "--spacing",
+    type=real(0, MAX_CELL_M * 100, above=True),
+    default=None,
+    help="Track spacing in metres (with --pattern); default the sensor footprint's diameter, 2 x fov x --cell.",
+)
 @click.option("--out", "out_dir", type=click.Path(path_type=Path), required=True, help="Output folder.")
 def plan_command(
     area: Path,
@@ -106,16 +131,26 @@ def plan_command(
     rotate: bool,
     unknown_height: str,
     max_cells: int,
+    pattern: str | None,
+    lkp: str | None,
+    uavs: int,
+    spacing: float | None,
     out_dir: Path,
 ) -> None:
     """Turn a search AREA (GeoJSON, KML or QGroundControl .plan) into a cell grid.
 
     Writes OUT/grid.npz (the grid the controller loads), OUT/grid.geojson (cells with a blocked
-    flag), OUT/area.plan (QGroundControl geofence) and OUT/preview.png.
+    flag), OUT/area.plan (QGroundControl geofence) and OUT/preview.png. With --pattern and --lkp,
+    also OUT/uav1.plan .. OUT/uavN.plan: each vehicle's share of the search pattern as waypoints.
     """
     if not margin < altitude:
         raise InputError(f"--margin {margin:g}: the safety margin must be below --altitude ({altitude:g} m)")
+    lkp_point = _lkp(lkp) if lkp is not None else None
+    if (pattern is None) != (lkp_point is None):
+        raise InputError("--pattern and --lkp go together: give both (e.g. --pattern sector --lkp 41.88,-87.63)")
     new_recording_folder(out_dir, "--out")  # a recording's grid.npz is its own: never replaced
+    from shapely import Point
+
     from swarmctl.geo.buildings import BuildingRule, load_buildings
     from swarmctl.geo.export import write_grid_geojson
     from swarmctl.geo.grid import make_grid
@@ -124,6 +159,11 @@ def plan_command(
     from swarmctl.geo.preview import render_preview
 
     the_area = load_area(area)
+    if lkp_point is not None and not the_area.geometry.covers(Point(lkp_point[1], lkp_point[0])):
+        raise InputError(
+            f"--lkp {lkp_point[0]:g},{lkp_point[1]:g}: the last known point lies outside the area {area} "
+            "(or in a hole of it); give LAT,LON of a point inside it"
+        )
     for message in the_area.warnings:
         _warn(message)
     bset = load_buildings(buildings_file) if buildings_file is not None else None
@@ -136,6 +176,11 @@ def plan_command(
             f"{area}: every cell of the {grid.width} x {grid.height} grid is blocked; use a smaller --cell"
             + (", --unknown-height ignore or a higher --altitude" if bset is not None else "")
         )
+    planned = None
+    if pattern is not None and lkp_point is not None:  # planned before anything is written
+        from swarmctl.geo.patterns import plan_pattern
+
+        planned = plan_pattern(grid, pattern, lkp_point, uavs, spacing)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         written = [
@@ -144,6 +189,8 @@ def plan_command(
             write_plan(the_area, out_dir / "area.plan"),
             render_preview(grid, the_area, out_dir / "preview.png", bset, rule),
         ]
+        if planned is not None:
+            written += _write_routes(the_area, planned, out_dir)
     except OSError as exc:
         raise InputError(
             f"{exc.filename or out_dir}: cannot write the output ({exc.strerror}); choose another --out"
@@ -159,4 +206,43 @@ def plan_command(
             f"{unreachable} free cell(s) ({100 * unreachable / free:.1f} % of the free cells) cannot be reached "
             "from the largest free region; vehicles starting there stay cut off"
         )
+    if planned is not None and lkp_point is not None:
+        click.echo(
+            f"pattern: {planned.pattern} from {lkp_point[0]:.6f},{lkp_point[1]:.6f}, track spacing "
+            f"{planned.spacing:g} m, {len(planned.cells)} free cells covered; {planned.split}"
+        )
+        for route in planned.routes:
+            click.echo(
+                f"{route.name}: {len(route.waypoints)} waypoints, {route.length:,.0f} m, altitude {route.altitude:g} m"
+            )
+        if planned.straight:
+            _warn(
+                f"{planned.straight} way(s) between waypoints join parts of the area that no free cells connect; "
+                "they are flown straight, over blocked cells or outside the area"
+            )
     click.echo("wrote: " + ", ".join(str(p) for p in written))
+
+
+def _lkp(text: str) -> tuple[float, float]:
+    """--lkp LAT,LON as two finite numbers in range."""
+    parts = text.split(",")
+    fix = "give it as LAT,LON in degrees, e.g. --lkp 41.8819,-87.6278"
+    try:
+        lat, lon = (float(p) for p in parts)
+    except ValueError:
+        raise InputError(f"--lkp {printable(text)!r}: not two numbers; {fix}") from None
+    if not (math.isfinite(lat) and math.isfinite(lon) and -90 <= lat <= 90 and -180 <= lon <= 180):
+        raise InputError(f"--lkp {printable(text)!r}: latitude must lie in -90..90 and longitude in -180..180; {fix}")
+    return lat, lon
+
+
+def _write_routes(area, planned, out_dir: Path) -> list[Path]:
+    """One QGroundControl .plan per vehicle: the area's fences and the vehicle's waypoints."""
+    from swarmctl.geo.plan_io import Waypoint, write_mission_plan
+
+    return [
+        write_mission_plan(
+            area, [Waypoint(lat, lon, route.altitude) for lat, lon in route.waypoints], out_dir / f"{route.name}.plan"
+        )
+        for route in planned.routes
+    ]

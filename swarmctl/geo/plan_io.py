@@ -16,12 +16,15 @@ e.g. ``geoFence.polygons[1].inclusion``.
 Writing (`write_plan`): the area's outer rings become inclusion polygons, its holes and no-fly
 polygons exclusion polygons, its no-fly circles exclusion circles, with an empty mission (home at
 a point inside the area, altitudes relative to home) and no rally points, as QGroundControl
-itself writes them.
+itself writes them. `write_mission_plan` writes the same fences with a mission of waypoints: SimpleItems
+with command 16 (NAV_WAYPOINT) and frame 3 (altitude relative to home); `read_waypoints` reads a plan's
+SimpleItems back, their command, frame and position checked.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +40,8 @@ from swarmctl.geo.readers import json_number, lonlat_ring, make_polygon, read_js
 MAX_RADIUS = 1e6  # metres
 PLAN_VERSION = 1  # the file version QGroundControl writes (and the only one it reads)
 PART_VERSIONS = (1, 2)  # the geoFence and mission versions QGroundControl reads
+MAV_CMD_NAV_WAYPOINT = 16
+MAV_FRAME_GLOBAL_RELATIVE_ALT = 3  # altitude relative to home
 
 
 def circle_polygon(circle: Circle) -> Polygon:
@@ -77,9 +82,8 @@ def _items(parent: dict, key: str, path: Path, where: str) -> list:
     return value
 
 
-def read_plan(path: str | Path) -> Area:
-    """Read the area and no-fly zones of a QGroundControl .plan file (see the module docstring)."""
-    path = Path(path)
+def _plan_parts(path: Path) -> tuple[dict, dict]:
+    """A .plan file's geoFence and mission objects, its fileType and versions checked."""
     obj = read_json(path, "QGroundControl plan")
     if not isinstance(obj, dict) or obj.get("fileType") != "Plan":
         raise InputError(
@@ -100,6 +104,13 @@ def read_plan(path: str | Path) -> Area:
                 f"{path}: {where}version {version!r} is not one QGroundControl writes "
                 f"({' or '.join(map(str, known))}); save the plan again from QGroundControl"
             )
+    return fence, mission
+
+
+def read_plan(path: str | Path) -> Area:
+    """Read the area and no-fly zones of a QGroundControl .plan file (see the module docstring)."""
+    path = Path(path)
+    fence, mission = _plan_parts(path)
     area: list[tuple[Polygon, str]] = []
     nofly: list[tuple[Polygon, str]] = []
     circles: list[Circle] = []
@@ -191,3 +202,79 @@ def write_plan(area: Area, path: str | Path) -> Path:
     path = Path(path)
     path.write_text(json.dumps(plan_dict(area), indent=4) + "\n", encoding="utf-8")
     return path
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """A mission item of a .plan: a NAV_WAYPOINT at (lat, lon), `alt` metres in `frame`."""
+
+    lat: float
+    lon: float
+    alt: float
+    command: int = MAV_CMD_NAV_WAYPOINT
+    frame: int = MAV_FRAME_GLOBAL_RELATIVE_ALT
+
+
+def waypoint_item(point: Waypoint, jump_id: int) -> dict:
+    """A QGroundControl SimpleItem for a waypoint, as QGroundControl writes it (altitude relative to home)."""
+    return {
+        "AMSLAltAboveTerrain": None,
+        "Altitude": point.alt,
+        "AltitudeMode": 1,
+        "autoContinue": True,
+        "command": point.command,
+        "doJumpId": jump_id,
+        "frame": point.frame,
+        "params": [0, 0, 0, None, point.lat, point.lon, point.alt],
+        "type": "SimpleItem",
+    }
+
+
+def mission_plan_dict(area: Area, waypoints: list[Waypoint]) -> dict:
+    """The QGroundControl plan of `area`'s fences with `waypoints` as its mission; the planned home is
+    the first waypoint's position on the ground (the vehicle's real home replaces it)."""
+    plan = plan_dict(area)
+    plan["mission"]["items"] = [waypoint_item(p, i + 1) for i, p in enumerate(waypoints)]
+    if waypoints:
+        plan["mission"]["plannedHomePosition"] = [waypoints[0].lat, waypoints[0].lon, 0]
+    return plan
+
+
+def write_mission_plan(area: Area, waypoints: list[Waypoint], path: str | Path) -> Path:
+    """Write a .plan with `area`'s fences and a waypoint mission; returns the path."""
+    path = Path(path)
+    path.write_text(json.dumps(mission_plan_dict(area, waypoints), indent=4) + "\n", encoding="utf-8")
+    return path
+
+
+def _whole(value: object, path: Path, at: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise InputError(f"{path}: {at} is {show_json(value)}, not a whole number; fix the plan")
+    return value
+
+
+def read_waypoints(path: str | Path) -> list[Waypoint]:
+    """The SimpleItem mission items of a .plan file, in order (complex items, such as surveys, skipped).
+    Each needs a whole "command" and "frame" and "params" of seven values whose latitude, longitude and
+    altitude (the last three) are finite JSON numbers."""
+    path = Path(path)
+    _, mission = _plan_parts(path)
+    points = []
+    for i, item in enumerate(_items(mission, "items", path, "mission")):
+        at = f"mission.items[{i}]"
+        if not isinstance(item, dict):
+            raise InputError(f"{path}: {at} is {show_json(item)}, not a JSON object; fix the plan")
+        if item.get("type") != "SimpleItem":
+            continue
+        command, frame = (_whole(item.get(key), path, f"{at}.{key}") for key in ("command", "frame"))
+        params = item.get("params")
+        if not isinstance(params, list) or len(params) != 7:
+            raise InputError(f"{path}: {at}.params must be a list of 7 values; fix the plan")
+        fix = "write it as a JSON number (not a string, a boolean or null); fix the plan"
+        lat, lon, alt = (json_number(params[k], path, f"{at}.params[{k}]", fix) for k in (4, 5, 6))
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            raise InputError(
+                f"{path}: {at}.params [4], [5] = {lat:g}, {lon:g}: not a latitude and a longitude; fix the plan"
+            )
+        points.append(Waypoint(lat, lon, alt, command, frame))
+    return points
