@@ -164,19 +164,20 @@ def test_the_controller_heartbeat_is_twice_a_second():
 
 
 @pytest.mark.slow
-def test_a_search_over_lossy_links_loses_no_vehicle_and_no_step(tmp_path):
-    """Every link through a relay losing 20 % each way (30 +- 20 ms, 2 % duplicates): no vehicle judged
-    lost, none sent home by its GCS failsafe, no step timed out; lost targets cost little."""
+def test_a_search_with_detectors_over_lossy_links_completes_and_loses_no_vehicle_and_no_step(tmp_path):
+    """The demo's kind of mission (detectors, hidden targets, the coordinated planner) with every link
+    through a relay losing 20 % each way (30 +- 20 ms, 2 % duplicates): it completes, no vehicle judged
+    lost, none sent home by its GCS failsafe, no step timed out (tools/lossy_links.py flies the demo
+    itself on seeds 0-4)."""
     faults = LinkFaults(loss=0.2, delay=0.03, jitter=0.02, duplicate=0.02)
-    with SimSwarm(small_grid(), uavs=2, seed=1, speedup=30.0, carry_detectors=False, link_faults=faults) as swarm:
-        plan = swarm.plan("frontier", end_action="land", time_limit=10.0)
+    with SimSwarm(small_grid(), uavs=2, seed=1, speedup=30.0, link_faults=faults) as swarm:
+        plan = swarm.plan("coordinated", end_action="land", time_limit=60.0)
         controller, outcome = fly(plan, tmp_path)
         counts = [r.counts() for r in swarm.relays]
         failsafes = [m.state().gcs_failsafe for m in swarm.mocks]
-    assert outcome == "time limit"
-    assert all(c.forward.lost > 0 and c.back.lost > 0 and c.back.duplicated > 0 for c in counts)
+    assert outcome == "complete"
+    assert all(c.forward.lost > 0 and c.back.lost > 0 for c in counts)
     events = [line for line in (tmp_path / "events.jsonl").read_text().splitlines()]
     assert not any('"change":"lost"' in e or '"event":"step_timeout"' in e for e in events)
     assert not any(failsafes)
-    assert all(a.state.value in ("search", "ended") for a in controller.agents)
-    assert all(a.steps >= 10 for a in controller.agents)
+    assert [a.end_state for a in controller.agents] == ["landed", "landed"]
