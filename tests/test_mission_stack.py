@@ -26,7 +26,7 @@ def recording(folder, channel, stacked: bool, monkeypatch) -> tuple[list, list]:
             m.setattr(controller_module, "make_bus", per_agent_bus)
         grid = small_grid(14, 14)
         with SimSwarm(grid, uavs=4, seed=7, speedup=30.0, carry_detectors=False, channel=channel) as swarm:
-            plan = swarm.plan("frontier", end_action="land", time_limit=8.0)
+            plan = swarm.plan("frontier", end_action="land", time_limit=5.0)
             controller, _ = fly(plan, folder)
         assert (controller.bus.stack is not None) == stacked
     lines = [json.loads(x) for x in (folder / "events.jsonl").read_text().splitlines()]
