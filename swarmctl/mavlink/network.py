@@ -469,14 +469,10 @@ class MavlinkLink:
         first = peer.heartbeat is None
         peer.compid = msg.get_srcComponent()
         peer.heartbeat, peer.last_heartbeat, peer.last_heard = msg, now, now
-        if first or peer.lost:
-            self._back(peer, src)
-
-    def _back(self, peer: Peer, src: int) -> None:
-        """The vehicle is heard (again): not lost, and its "back" (or first, "seen") event."""
-        peer.lost = False
-        if src in self.expected:
-            self._link_event(peer, "back")
+        if first or peer.lost:  # its "back" (or first, "seen") event
+            peer.lost = False
+            if src in self.expected:
+                self._link_event(peer, "back")
 
     def _check_waiters(self, msg: Any) -> None:
         for pred, fut in list(self._waiters):

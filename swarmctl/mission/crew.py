@@ -39,6 +39,10 @@ class Crew:
         if a.enter(state) or extra:
             self.rec.event("state", vehicle=a.name, sysid=a.spec.sysid, state=state, cell=a.cell, **extra)
 
+    def named(self, name: object) -> Agent | None:
+        """This process's agent of that name (None: none, or not a name)."""
+        return next((a for a in self.agents if isinstance(name, str) and a.name == name), None)
+
     def held(self, exclude: Agent | None = None) -> set[Cell]:
         """The cells vehicles hold: this process's agents (but `exclude`) and the vehicles of other
         processes known through the knowledge channel."""

@@ -152,7 +152,7 @@ class Rounds:
         search is over; its end action stays rtl)."""
         orders, self.state.orders = self.state.orders, []
         for action, name in orders:
-            a = next((b for b in self.crew.agents if b.name == name), None)
+            a = self.crew.named(name)
             if action != "home" or a is None or a.state not in (State.SEARCH, State.HOVER):
                 continue
             a.sent_home, a.end_action = True, "rtl"

@@ -379,7 +379,7 @@ class LiveSite:
             state.judge(cell, action == "confirm")
         elif action == "home":
             name = order.get("vehicle")
-            agent = next((a for a in self.crew.agents if isinstance(name, str) and a.name == name), None)
+            agent = self.crew.named(name)
             if agent is None:
                 return _error(400, "no such vehicle")
             if agent.state not in (State.SEARCH, State.HOVER):
