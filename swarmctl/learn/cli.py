@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
+import zlib
 from dataclasses import replace
 from pathlib import Path
 
 import click
+import numpy as np
 
-from swarmctl.bounds import MAX_THREADS, SEED, require_memory, whole, writable_file
+from swarmctl.bounds import MAX_THREADS, SEED, read_limited, require_memory, whole, writable_file
 from swarmctl.cli_options import (
     field_default,
     options_from,
@@ -18,6 +22,7 @@ from swarmctl.cli_options import (
     world_config,
     world_options,
 )
+from swarmctl.errors import InputError
 from swarmctl.learn.curriculum import curriculum_side
 from swarmctl.learn.evaluate import DEFAULT_CHUNK, evaluate
 from swarmctl.learn.search_config import SearchConfig
@@ -25,6 +30,7 @@ from swarmctl.learn.train_config import MAX_EPISODES, MAX_STEPS, TrainConfig
 from swarmctl.policy.registry import POLICY_HELP
 from swarmctl.world.beliefs import VARIANT_CHANNELS
 from swarmctl.world.config import WorldConfig
+from swarmctl.world.prior import hotspot_prior, normalise_prior
 
 
 def format_table(results: list[dict]) -> str:
@@ -51,7 +57,54 @@ def format_table(results: list[dict]) -> str:
     return "\n".join([line(head), line(["-" * w for w in widths]), *map(line, rows)])
 
 
-EVAL_WORLD = ("finish",)  # WorldConfig fields that eval sets besides the world's options
+EVAL_WORLD = ("finish", "pod", "pos_goal")  # WorldConfig fields that eval sets besides the world's options
+PRIOR_MAX_BYTES = 64 * 2**20
+PRIOR_HELP = (
+    "Where the person is likely to be: a .npz file with an array `prior` of the map's shape (non-negative "
+    "weights, normalised over each episode's free cells), or hotspot:SHARE:AREA[:SEED], SHARE of the "
+    "probability on about AREA of the free cells round two random centres (swarmctl.world.prior.hotspot_prior, "
+    "drawn with SEED, default 0). Planners that read it search where it is likely; POS is always against it "
+    "(uniform without it). --scenario prior draws the targets from it."
+)
+
+
+def load_prior(text: str, free: np.ndarray) -> np.ndarray:
+    """The prior `--prior` names, (W, H) float64 weights for a map whose free cells are `free` (W, H):
+    hotspot:SHARE:AREA[:SEED] made on `free`, or a .npz file's array `prior` of that shape."""
+    if text.startswith("hotspot:"):
+        parts = text.split(":")[1:]
+        try:
+            share, area = float(parts[0]), float(parts[1])
+            seed = int(parts[2]) if len(parts) == 3 else 0
+            if len(parts) not in (2, 3) or seed < 0:
+                raise ValueError
+        except (ValueError, IndexError):
+            raise InputError(
+                f"--prior {text!r}: write hotspot:SHARE:AREA[:SEED], as in hotspot:0.7:0.2:1 (SEED a whole number >= 0)"
+            ) from None
+        return hotspot_prior(free, share, area, np.random.default_rng(seed))
+    path = Path(text)
+    data = read_limited(path, "prior file", PRIOR_MAX_BYTES, "--prior")
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+            prior = np.asarray(npz["prior"])
+    except KeyError:
+        raise InputError(
+            f"--prior {path}: the .npz file has no array named `prior`; save it with np.savez(path, prior=...)"
+        ) from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        raise InputError(
+            f"--prior {path}: not a .npz file ({type(exc).__name__}); save it with np.savez(path, prior=...)"
+        ) from None
+    if prior.shape != free.shape or prior.dtype.kind not in "biuf":
+        raise InputError(
+            f"--prior {path}: `prior` is a {prior.dtype} array of shape {prior.shape}; give numbers of the map's "
+            f"shape {free.shape}"
+        )
+    normalise_prior(prior, free, f"--prior {path}")  # the weights checked once, here
+    return prior.astype(np.float64)
+
+
 TRAIN_WORLD = ("variant", "explore_reward")  # ... and train
 TRAIN_FIRST = ("episodes",)  # the TrainConfig fields train sets, in the order of its help
 TRAIN_HYPERPARAMETERS = (
@@ -121,8 +174,9 @@ TRAIN_RESUME = ("keep_resume",)  # default None on the command line: on with --c
     help="Torch and onnxruntime CPU threads for the policies.",
 )
 @options_from(WorldConfig, EVAL_WORLD)
+@click.option("--prior", "prior_text", default=None, metavar="FILE|hotspot:SHARE:AREA[:SEED]", help=PRIOR_HELP)
 @click.option("--progress/--no-progress", default=True, help="Show a progress bar on a terminal.")
-def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, threads, progress, **kwargs):
+def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, threads, prior_text, progress, **kwargs):
     """Evaluate policies: success rate, mean episode duration, duration CDF, against the oracle bound."""
     cfg = world_config(kwargs, **values_from(WorldConfig, kwargs, EVAL_WORLD))
     from swarmctl.policy.threads import set_inference_threads
@@ -137,16 +191,25 @@ def eval_command(steps, episodes, seed, policies, json_path, grid_file, batch, t
         cfg = replace(cfg, map_size=max(grid.width, grid.height), obstacles=0.0)
         where, cells = f"grid {grid_file} ({grid.width} x {grid.height}, {blocked.mean():.1%} blocked)", blocked.size
     require_world_memory(cfg, min(episodes, batch), f"{min(episodes, batch)} episodes at {where}", cells)
+    prior = None
+    if prior_text is not None:
+        free = ~blocked if blocked is not None else np.ones((cfg.map_size, cfg.map_size), dtype=bool)
+        prior = load_prior(prior_text, free)
     if json_path is not None:
         writable_file(json_path, "--json")
-    results = evaluate(cfg, list(policies), episodes, seed, steps, chunk=batch, progress=progress, blocked=blocked)
-    if grid_file is not None:
-        for r in results:
+    results = evaluate(
+        cfg, list(policies), episodes, seed, steps, chunk=batch, progress=progress, blocked=blocked, prior=prior
+    )
+    for r in results:
+        if grid_file is not None:
             r["scenario"]["grid"] = str(grid_file)
+        r["scenario"]["prior"] = prior_text
     click.echo(
         f"{cfg.scenario}, {where}, U={cfg.uavs}, K={cfg.targets}"
         + (f", eta={cfg.obstacles}" if grid_file is None else "")
         + f", N={steps}, {episodes} episodes, seed {seed}, channel {cfg.channel}, finish {cfg.finish}"
+        + (f", pod {cfg.pod:g}" if cfg.pod < 1 else "")
+        + (f", prior {prior_text}" if prior_text is not None else "")
     )
     click.echo(format_table(results))
     if json_path is not None:

@@ -9,6 +9,13 @@ Success, and so `success_rate`, `mean_steps` and `steps_cdf`, is under the world
 The oracle bound (`oracle_mean_steps`, `duration_ratio_to_oracle`, the `oracle` policy) exists for
 `held` only: the others give None, and the `oracle` policy is refused. `found` adds `found_steps` per
 episode and `mean_first_find_steps`; `covered` adds `covered_fraction` and `mean_covered_fraction`.
+
+Every finish line reports the search's probability of success (POS, swarmctl.world.prior: against the
+prior given, uniform without one, whatever the policy reads): `mean_pos_goal_steps` (the steps until POS
+reached `pos_goal`, the step limit for an episode that never did), `pos_goal_rate`, `mean_final_pos`
+and `pos_by_step` (the mean POS after each step, 0 the starts'; an episode that ended keeps its last);
+per episode `pos_goal_step` (None: not reached) and `final_pos`; under found, covered and pos,
+`targets_found`. The finish line `pos` succeeds when POS reaches pos_goal.
 """
 
 from __future__ import annotations
@@ -100,20 +107,25 @@ def run_policy(
     chunk: int = DEFAULT_CHUNK,
     progress: bool = True,
     blocked: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
+    pos_traces: bool = False,
 ) -> dict:
-    """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given); returns
-    the per-policy result record."""
+    """Run one policy on episodes 0..E-1 of `seed` (on the fixed map `blocked` when given, with the
+    prior `prior` (W, H) when given); returns the per-policy result record (with `pos_traces`, each
+    episode's POS after every step too: `pos_by_step`)."""
     policy = make_policy(spec)
     check_finish(cfg, policy)
     held = cfg.finish == "held"
     durations, successes, oracle = [], [], []
     records: list[dict[str, Any]] = []
     collisions = 0
+    traces: list[np.ndarray] = []  # (n, steps + 1) per chunk
     act_seconds, decisions = 0.0, 0
     bar = tqdm(total=episodes, desc=f"{spec:>12}", unit="ep", disable=not progress, leave=False)
     for start, n in _chunks(episodes, chunk):
-        env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=False)  # policies observe for themselves
-        env.reset(seed, range(start, start + n), blocked)
+        # policies observe for themselves
+        env = SearchEnv(cfg, batch=n, stop_at_success=True, observations=False, track_pos=True)
+        env.reset(seed, range(start, start + n), blocked, prior)
         if held:
             bound = OracleBound().durations(env)
             oracle.append(np.minimum(bound, steps))
@@ -141,7 +153,17 @@ def run_policy(
             env.step(actions)
         durations.append(np.where(env.done, env.duration, steps))
         successes.append(env.done.copy())
-        records += episode_records(env, durations[-1], successes[-1])
+        chunk_records = episode_records(env, durations[-1], successes[-1])
+        trace = np.stack(env.pos_trace, axis=1)  # (n, steps taken + 1)
+        traces.append(np.concatenate([trace, np.repeat(trace[:, -1:], steps + 1 - trace.shape[1], 1)], 1))
+        for i, record in enumerate(chunk_records):
+            if pos_traces:
+                record["pos_by_step"] = traces[-1][i].tolist()
+            record["pos_goal_step"] = int(env.pos_step[i]) if env.pos_step[i] >= 0 else None
+            record["final_pos"] = float(trace[i, -1])
+            if cfg.finish != "held":  # (found_step is kept for the other finish lines)
+                record["targets_found"] = int((env.found_step[i] >= 0).sum())
+        records += chunk_records
         collisions += int(env.collisions.sum())
         bar.update(n)
     bar.close()
@@ -170,6 +192,15 @@ def run_policy(
         result["mean_first_find_steps"] = float(np.mean(first))
     elif cfg.finish == "covered":
         result["mean_covered_fraction"] = float(np.mean([r["covered_fraction"] for r in records]))
+    if traces:  # (the oracle bound flies nothing)
+        goal_steps = [steps if r["pos_goal_step"] is None else r["pos_goal_step"] for r in records]
+        result["pos_goal"] = cfg.pos_goal
+        result["pos_goal_rate"] = float(np.mean([r["pos_goal_step"] is not None for r in records]))
+        result["mean_pos_goal_steps"] = float(np.mean(goal_steps))
+        result["mean_final_pos"] = float(np.mean([r["final_pos"] for r in records]))
+        result["pos_by_step"] = [float(x) for x in np.concatenate(traces).mean(0)]
+        if cfg.finish != "held":
+            result["mean_targets_found"] = float(np.mean([r["targets_found"] for r in records]))
     result["per_episode"] = records
     return result
 
@@ -183,8 +214,10 @@ def evaluate(
     chunk: int = DEFAULT_CHUNK,
     progress: bool = True,
     blocked: np.ndarray | None = None,
+    prior: np.ndarray | None = None,
 ) -> list[dict]:
-    """Evaluate every policy on the same episodes (on the fixed map `blocked` when given)."""
+    """Evaluate every policy on the same episodes (on the fixed map `blocked` when given, with the prior
+    `prior` when given)."""
     for spec in specs:
         check_finish(cfg, make_policy(spec))  # fail on a bad spec, or the oracle off `held`, before any work
-    return [run_policy(cfg, s, episodes, seed, steps, chunk, progress, blocked) for s in specs]
+    return [run_policy(cfg, s, episodes, seed, steps, chunk, progress, blocked, prior) for s in specs]

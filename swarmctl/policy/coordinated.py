@@ -11,10 +11,13 @@ part of that plan (as frontier does; with shared beliefs the plan is made once p
    the free known targets go to the searching vehicles by shortest-path distance over the known
    passable cells, minimising the longest trip and then the sum (scipy's linear_sum_assignment).
 3. **Exploration goals, fanned out** (Burgard et al., "Coordinated multi-robot exploration", IEEE T-RO
-   2005): the others, in mission order, take the cell whose sensing disc would show the most unexplored
-   cells less `beta` per step of path; the unexplored cells round an assigned goal then count less
-   for the vehicles after it. In the cluster scenario unexplored cells near a known target weigh
-   more (targets come in clusters: the paper's value map phi says the same).
+   2005): the others, in mission order, take the cell whose sensing disc holds the most probability
+   left (`Beliefs.density`: the unexplored cells under a uniform prior and a detector that never
+   misses) less `beta` per step of path; the cells round an assigned goal then count less for the
+   vehicles after it. In the cluster scenario unexplored cells near a known target weigh more
+   (targets come in clusters: the paper's value map phi says the same). With `use_prior` off
+   (`coordinated:prior=no`) the planner weighs what a uniform prior would leave after the same passes
+   (`Beliefs.uniform_density`): the same search, blind to where the person is likely to be.
 4. **Moves without conflicts**: each vehicle steps along a shortest path to its goal, in mission order,
    never into a cell another vehicle holds now or an earlier vehicle moves to (the guard's rule), so
    the plan never collides and the guard never refuses it.
@@ -47,6 +50,10 @@ class CoordinatedSettings:
     """The planner's constants (chosen on synthetic maps and the Chicago Loop grid; docs/RESULTS.md)."""
 
     beta: float = 3.0  # unexplored cells a step of path must be worth
+    # beta times (the largest weight left) ** beta_gain: where the probability is dense a step of path is worth
+    # more of it, so the team sweeps a hotspot through instead of hopping between its best discs (tuned on
+    # seed 45046 among 0, 0.5 and 1; docs/RESULTS.md, "Searching with a prior")
+    beta_gain: float = 0.5
     spread: float = 2.0  # the cells within spread x fov of an assigned goal count less for later vehicles
     discount: float = 1.0  # how much less (1: not at all)
     cluster_gain: float = 0.0  # extra weight of unexplored cells near a known target
@@ -83,10 +90,17 @@ def bottleneck_assignment(cost: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class CoordinatedPolicy:
     """The coordinated planner (module docstring); `hover` is the hover rule (defer, first or no)."""
 
-    def __init__(self, hover: str = DEFER, settings: CoordinatedSettings | None = None, name: str | None = None):
+    def __init__(
+        self,
+        hover: str = DEFER,
+        settings: CoordinatedSettings | None = None,
+        name: str | None = None,
+        use_prior: bool = True,
+    ):
         self.hover = hover
         self.settings = settings or CoordinatedSettings()
         self.name = name or "coordinated"
+        self.use_prior = use_prior  # weigh the beliefs' density (the prior's), or a uniform prior's
         self.horizon: int | None = None  # the episode's step limit, when the caller knows it
         self.hold: int | None = None  # targets the mission holds, when fewer than its vehicles
         self.seed = 0
@@ -104,7 +118,6 @@ class CoordinatedPolicy:
         on_target = beliefs.hovering[hb, hu] & known
         targets = beliefs.targets[hb, hu]
         obstacles = beliefs.obstacles[hb, hu]
-        explored = beliefs.explored[hb, hu]
         park = self._parking(targets, n)
         parked = on_target & park[:, None]
         searching = known & ~parked
@@ -125,7 +138,7 @@ class CoordinatedPolicy:
             )
         pending = searching & ~has_goal
         if pending.any():
-            self._explore(beliefs, hb, dist, explored, targets, pending, goals, has_goal)
+            self._explore(beliefs, hb, hu, dist, targets, pending, goals, has_goal)
         moves = self._navigate(beliefs, hb, positions, known, passable, dist, goals, has_goal & searching)
         return np.where(parked, STAY, moves)
 
@@ -169,8 +182,8 @@ class CoordinatedPolicy:
         self,
         beliefs: Beliefs,
         hb: np.ndarray,
+        hu: np.ndarray,
         dist: np.ndarray,
-        explored: np.ndarray,
         targets: np.ndarray,
         pending: np.ndarray,
         goals: np.ndarray,
@@ -181,7 +194,10 @@ class CoordinatedPolicy:
         m, n, w, h = dist.shape
         fov = beliefs.settings.fov
         kernel = _disc_kernel(fov)
-        weight = (~explored).astype(np.float32)
+        weight = (beliefs.density if self.use_prior else beliefs.uniform_density)[hb, hu]  # a copy: changed below
+        beta = np.float32(s.beta)
+        if s.beta_gain:  # (the paper's unexplored map: its largest weight is 1, beta stays)
+            beta = beta * weight.max((1, 2), initial=0.0)[:, None, None] ** np.float32(s.beta_gain)
         if s.cluster_gain > 0 and targets.any():
             weight *= 1.0 + np.float32(s.cluster_gain) / (1.0 + _distance_to_targets(targets))
         reach = max(s.spread * fov, 0.5)
@@ -197,8 +213,14 @@ class CoordinatedPolicy:
                 utility = ndimage.correlate(weight, kernel[None], mode="constant")
             dj = dist[:, j]
             ties = uniform(self.seed, episodes, 0, np.full((m, 1), j), CLAIMS, (w, h))[:, 0]
-            score = utility - np.float32(s.beta) * np.minimum(dj, UNREACHABLE).astype(np.float32) + 1e-3 * ties
-            score[(dj >= UNREACHABLE) | (utility <= 0)] = -np.inf
+            score = utility - beta * np.minimum(dj, UNREACHABLE).astype(np.float32) + 1e-3 * ties
+            # the vehicle's own cell is no goal: staying makes no pass (with pod 1 its disc is explored anyway)
+            score[(dj >= UNREACHABLE) | (dj == 0) | (utility <= 0)] = -np.inf
+            if beliefs.pod < 1.0:
+                # a detector that misses never clears a cell: a disc worth less than one step of path is no
+                # goal while a better one is left anywhere, or the team dithers over what it has searched
+                worth = np.where(utility >= beta, score, -np.inf)
+                score = np.where(np.isfinite(worth).any((1, 2), keepdims=True), worth, score)
             flat = score.reshape(m, -1).argmax(1)
             ok = todo & np.isfinite(score.reshape(m, -1)[rows, flat])
             if not ok.any():

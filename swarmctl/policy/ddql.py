@@ -84,6 +84,8 @@ class DDQLPolicy:
         rules = trained_rules(self.info, path)
         self.remove_taken = rules.get("taken", "remove") == "remove" if remove_taken is None else remove_taken
         trained = rules.get("hover", FIRST)
+        # the rule a search recipe trained under (None: the paper's networks, trained under the forced hover)
+        self.trained_hover: str | None = HOVER_ALIASES.get(trained, trained) if "hover" in rules else None
         self.hover: bool | str = HOVER_ALIASES.get(trained, trained) if hover is None else hover
         self.mask = rules.get("mask", "yes") == "yes" if mask is None else mask
         self.forward = make_forward(self.net, forward, key=self.info.get("weights_sha256"))

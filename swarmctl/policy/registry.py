@@ -1,5 +1,7 @@
 """Policy specs as users type them: `random`, `la:4`, `lawnmower`, `frontier`, `oracle`,
-`ddql:PATH[:options]` (swarmctl.policy.ddql), `ddql-greedy:PATH`."""
+`ddql:PATH[:options]` (swarmctl.policy.ddql), `ddql-greedy:PATH`; and `pattern:NAME`, a search pattern's
+routes (swarmctl.policy.routes), which only a mission builds: its routes come from the mission's grid
+and last known point."""
 
 from __future__ import annotations
 
@@ -11,18 +13,21 @@ from swarmctl.policy.hover import HOVER_ALIASES, HOVER_RULES
 from swarmctl.policy.lookahead import LookAhead
 from swarmctl.policy.oracle import OracleBound
 from swarmctl.policy.planners import FrontierPolicy, LawnmowerPolicy, RandomPolicy
+from swarmctl.policy.routes import ROUTE_PATTERNS, ROUTE_PREFIX, RoutePolicy
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.policy.ddql import DDQLPolicy  # imported when a spec asks for it (torch)
 
 # a policy that moves vehicles (swarmctl.policy.base.Policy, with a hover rule and a hold): every one
 # make_policy builds but the oracle bound
-Decider: TypeAlias = "RandomPolicy | LawnmowerPolicy | FrontierPolicy | CoordinatedPolicy | LookAhead | DDQLPolicy"
+Decider: TypeAlias = (
+    "RandomPolicy | LawnmowerPolicy | FrontierPolicy | CoordinatedPolicy | LookAhead | RoutePolicy | DDQLPolicy"
+)
 
 POLICY_HELP = (
     "coordinated, frontier, lawnmower, la:N (N = 1..6), random, oracle, "
     "ddql:PATH[:tau=T][:taken=..][:hover=..][:mask=..][:straggler=..], ddql-greedy:PATH; "
-    "any but oracle takes :hover=defer|first|no"
+    "any but oracle takes :hover=defer|first|no; coordinated:prior=no weighs a uniform prior (ignores --prior)"
 )
 
 
@@ -51,6 +56,26 @@ def make_policy(spec: str) -> Decider | OracleBound:
     return policy
 
 
+def make_route_policy(spec: str) -> RoutePolicy:
+    """The policy `pattern:NAME[:hover=RULE]` names, without routes yet (the mission gives them:
+    RoutePolicy.set_routes); InputError for another spec or an unknown pattern."""
+    spec = spec.strip()
+    name, _, arg = spec.partition(":")
+    arg, rule = _hover_option(spec, name, arg)
+    if name != ROUTE_PREFIX or arg not in ROUTE_PATTERNS:
+        forms = ", ".join(f"{ROUTE_PREFIX}:{p}" for p in ROUTE_PATTERNS)
+        raise InputError(f"policy {spec!r} is not a search pattern: use one of {forms}")
+    policy = RoutePolicy(name=spec)
+    if rule is not None:
+        policy.hover = rule
+    return policy
+
+
+def is_route_spec(spec: str) -> bool:
+    """Whether `spec` names a search pattern's routes (pattern:NAME)."""
+    return spec.strip().partition(":")[0] == ROUTE_PREFIX
+
+
 def make_decider(spec: str) -> Decider:
     """make_policy for a policy that moves vehicles: InputError for the oracle, a bound that reads the
     hidden targets."""
@@ -67,8 +92,8 @@ def _make(spec: str, name: str, arg: str) -> Decider | OracleBound:
         return LawnmowerPolicy()
     if name == "frontier" and not arg:
         return FrontierPolicy()
-    if name == "coordinated" and not arg:
-        return CoordinatedPolicy()
+    if name == "coordinated" and arg in ("", "prior=yes", "prior=no"):
+        return CoordinatedPolicy(name=spec, use_prior=arg != "prior=no")
     if name == "oracle" and not arg:
         return OracleBound()
     if name == "la":
@@ -79,6 +104,11 @@ def _make(spec: str, name: str, arg: str) -> Decider | OracleBound:
         if not 1 <= depth <= 6:
             raise InputError(f"--policy {spec!r}: the look-ahead depth must be an integer 1..6, as in la:4")
         return LookAhead(depth)
+    if name == ROUTE_PREFIX:
+        raise InputError(
+            f"--policy {spec!r}: a search pattern flies from a mission file, whose grid and "
+            "[mission] lkp = [LAT, LON] give its routes; use swarmctl fly, or another policy here"
+        )
     if name in ("ddql", "ddql-greedy"):
         try:
             from swarmctl.policy.ddql import make_ddql_policy

@@ -82,7 +82,14 @@ class Beliefs:
 
     The grid-sized fields (phi_hat, obstacles, targets) and `value` (the value channel without taken
     targets removed, computed from the other fields when not given) may be zero-argument callables:
-    the simulator gives them so, and each is computed once, when a policy first reads it."""
+    the simulator gives them so, and each is computed once, when a policy first reads it.
+
+    density (B, U, W, H) float32, the planners' exploration weight: the probability left on each cell
+    by the decider's prior and the passes it knows of, in units of a uniform prior's cell
+    (swarmctl.world.prior.density); when not given, 1 where unexplored and 0 where explored (a uniform
+    prior searched with a detector that never misses). passes (B, U, W, H) uint8, the passes the decider
+    knows of, with the detector's `pod`: what `uniform_density` reads (when not given, explored cells
+    count one pass)."""
 
     FIELDS = (
         "explored",
@@ -96,7 +103,14 @@ class Beliefs:
         "step",
         "step_limit",
     )
-    _MAPS = {"phi_hat": np.float32, "obstacles": bool, "targets": bool, "value": np.float32}
+    _MAPS = {
+        "phi_hat": np.float32,
+        "obstacles": bool,
+        "targets": bool,
+        "value": np.float32,
+        "density": np.float32,
+        "passes": np.uint8,
+    }
 
     def __init__(
         self,
@@ -112,10 +126,23 @@ class Beliefs:
         settings: ObservationSettings | None = None,
         value: MapSource = None,
         step_limit: int | None = None,
+        density: MapSource = None,
+        passes: MapSource = None,
+        pod: float = 1.0,
     ):
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
-        self._maps = {"phi_hat": phi_hat, "obstacles": obstacles, "targets": targets, "value": value}
+        self._maps = {
+            "phi_hat": phi_hat,
+            "obstacles": obstacles,
+            "targets": targets,
+            "value": value,
+            "density": density,
+            "passes": passes,
+        }
+        self._pod = float(pod)
+        if not 0.0 < self._pod <= 1.0:
+            raise ValueError(f"beliefs: the probability of detection {self._pod} is not in (0, 1]")
         self._ready: dict[str, np.ndarray] = {}  # the maps computed and checked already
         for name, given in self._maps.items():
             if given is not None and not callable(given):
@@ -174,6 +201,34 @@ class Beliefs:
     def targets(self) -> np.ndarray:
         """(B, U, W, H) bool: the cells the decider knows to hold a target."""
         return self._map("targets")
+
+    @property
+    def density(self) -> np.ndarray:
+        """(B, U, W, H) float32: the probability left on each cell in units of a uniform prior's cell (the
+        class docstring); 1 where unexplored and 0 where explored when not given. Shared: do not modify it."""
+        if self._maps["density"] is None:
+            return self._unexplored
+        return self._map("density")
+
+    @property
+    def pod(self) -> float:
+        """The detector's probability of detection per pass (what `uniform_density` reads)."""
+        return self._pod
+
+    @property
+    def uniform_density(self) -> np.ndarray:
+        """(B, U, W, H) float32: `density` as a uniform prior would leave it after the passes the decider
+        knows of, (1 - pod) ** passes: what a planner that ignores the prior weighs (1 where unexplored and
+        0 where explored with pod 1). Shared: do not modify it."""
+        if self._maps["passes"] is None or self.pod >= 1.0:
+            return self._unexplored
+        miss: np.ndarray = np.float32(1.0 - self.pod) ** np.arange(256, dtype=np.float32)
+        result: np.ndarray = miss[self._map("passes")]
+        return result
+
+    @cached_property
+    def _unexplored(self) -> np.ndarray:
+        return (~self.explored).astype(np.float32)
 
     # --- sizes --------------------------------------------------------------------------------------
     @property
@@ -349,7 +404,9 @@ class Beliefs:
         cells, obstacles, targets) and the same picture of the swarm (ideal sharing): planning for the
         swarm may then be done once for the batch."""
         same = np.ones(self.batch, dtype=bool)
-        for arr in (self.explored, self.obstacles, self.targets, self.positions, self.hovering):
+        maps = [self.explored, self.obstacles, self.targets, self.positions, self.hovering]
+        maps += [self._map(name) for name in ("density", "passes") if self._maps[name] is not None]
+        for arr in maps:
             same &= (arr == arr[:, :1]).reshape(self.batch, -1).all(1)
         return same
 
@@ -383,4 +440,7 @@ class Beliefs:
             self.settings,
             part("value"),
             self.step_limit,
+            part("density"),
+            part("passes"),
+            self.pod,
         )

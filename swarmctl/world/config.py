@@ -15,10 +15,11 @@ from swarmctl.errors import ScenarioError
 from swarmctl.limits import MAX_CELL_M, MAX_GRID_SIDE
 from swarmctl.world.beliefs import PAPER_VARIANT, VARIANT_CHANNELS
 
-SCENARIOS = ("sparse", "cluster")
+SCENARIOS = ("sparse", "cluster", "prior")  # prior: the K targets drawn from the episode's prior (world.prior)
 CHANNELS = ("ideal", "none", "model", "fixed")
-Finish = Literal["held", "found", "covered"]  # when an episode succeeds (WorldConfig.finish; mission files' finish)
+Finish = Literal["held", "found", "covered"]  # when an episode succeeds (mission files' finish)
 FINISHES: tuple[str, ...] = get_args(Finish)
+WORLD_FINISHES: tuple[str, ...] = (*FINISHES, "pos")  # WorldConfig.finish: the simulator's also pos
 MAX_WINDOW = 256  # the Q-network takes windows of 8..256
 MAX_UAVS = 1000
 MAX_FOV = 100.0  # cells
@@ -33,7 +34,14 @@ class WorldConfig:
     Defaults are the paper's (M = 20, U = 2, K = 4, F = 20, zeta = 3, theta = 1, psi = 0.8).
     """
 
-    scenario: str = field(default="cluster", metadata=dict(choices=SCENARIOS, help="Target placement rule."))
+    scenario: str = field(
+        default="cluster",
+        metadata=dict(
+            choices=SCENARIOS,
+            help="Target placement rule: the paper's sparse or cluster, or prior (the targets drawn from the "
+            "prior, eval's --prior, uniform without one; no spacing rule).",
+        ),
+    )
     map_size: int = field(  # M: the grid is M x M
         default=20, metadata=dict(option="--map", lo=1, hi=MAX_GRID_SIDE, help="Map side M.", unit="cells")
     )
@@ -111,11 +119,32 @@ class WorldConfig:
     finish: str = field(
         default="held",
         metadata=dict(
-            choices=FINISHES,
+            choices=WORLD_FINISHES,
             help="When an episode succeeds: held (the paper's: every vehicle on a target of its own), found "
-            "(every target inside some vehicle's sensing disc) or covered (every free cell reachable from the "
-            "starts sensed). found and covered accept fewer targets than vehicles; the oracle bound is for held "
-            "only.",
+            "(every target detected), covered (every free cell reachable from the starts sensed) or pos (the "
+            "probability of success against the episode's prior reaches --pos-goal). found, covered and pos "
+            "accept fewer targets than vehicles; the oracle bound is for held only.",
+        ),
+    )
+    # the detector: a target in a passing vehicle's sensing disc is detected with this probability (world.prior)
+    pod: float = field(
+        default=1.0,
+        metadata=dict(
+            lo=0.0,
+            hi=1.0,
+            above=True,
+            help="Probability of detection per pass: a target inside the sensing disc of a vehicle that has just "
+            "reached its cell is detected with this probability (1: always, the paper's).",
+        ),
+    )
+    pos_goal: float = field(  # finish pos; every finish reports the step the team's POS reaches it
+        default=0.9,
+        metadata=dict(
+            lo=0.0,
+            hi=1.0,
+            above=True,
+            help="The probability of success (POS, against the episode's prior; uniform without one) that "
+            "--finish pos ends at; every finish line reports the step it is reached.",
         ),
     )
 
@@ -132,8 +161,12 @@ class WorldConfig:
             raise ScenarioError(f"variant {self.variant!r} is unknown: use one of {', '.join(VARIANT_CHANNELS)}")
         if not 0.0 <= self.explore_reward <= MAX_EXPLORE_REWARD:
             raise ScenarioError(f"explore reward {self.explore_reward} must be a number in [0, {MAX_EXPLORE_REWARD:g}]")
-        if self.finish not in FINISHES:
-            raise ScenarioError(f"--finish {self.finish!r} is unknown: use one of {', '.join(FINISHES)}")
+        if self.finish not in WORLD_FINISHES:
+            raise ScenarioError(f"--finish {self.finish!r} is unknown: use one of {', '.join(WORLD_FINISHES)}")
+        if not 0.0 < self.pod <= 1.0:
+            raise ScenarioError(f"--pod {self.pod}: the probability of detection must be in (0, 1]")
+        if not 0.0 < self.pos_goal <= 1.0:
+            raise ScenarioError(f"--pos-goal {self.pos_goal}: the probability of success to reach must be in (0, 1]")
         if self.scenario not in SCENARIOS:
             raise ScenarioError(f"--scenario {self.scenario!r} is unknown: use one of {', '.join(SCENARIOS)}")
         if not 1 <= m <= MAX_GRID_SIDE:
@@ -166,8 +199,9 @@ class WorldConfig:
                 "for every vehicle; evaluate with --finish found|covered for fewer targets than vehicles"
             )
         cells = m * m
-        # Targets need room for their spacing rule: at most one per 2x2 block in the cluster rule.
-        max_targets = math.ceil(m / 2) ** 2
+        # Targets need room for their spacing rule: at most one per 2x2 block in the cluster rule (the prior
+        # scenario has none: one target per cell).
+        max_targets = cells if self.scenario == "prior" else math.ceil(m / 2) ** 2
         if self.targets > max_targets:
             raise ScenarioError(
                 f"--targets {self.targets} do not fit on a {m} x {m} map with spacing > 1: at most {max_targets}"

@@ -20,6 +20,7 @@ import numpy.typing as npt
 
 # the world's streams (the policies' are 1..6)
 LOSSES = 0x100  # one per message: lost or delivered (swarmctl.world.channel)
+DETECTIONS = 0x101  # one per (vehicle, target) of a pass: detected or missed (SearchEnv, pod < 1)
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1, _M2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)

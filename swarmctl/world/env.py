@@ -11,8 +11,20 @@ no target reward); a swap is not a collision; a vehicle on a target cell without
   held (the paper's): after the t-th joint move every vehicle is on a target and no two share a cell;
   found: every target has been inside some vehicle's sensing disc by step t (`found_step`, kept under
     found and covered, holds the step each target was first sensed, 0 for the starts' discs, -1 not yet);
-  covered: every free cell 4-connected to a start cell has been sensed by step t (`covered_fraction`).
+  covered: every free cell 4-connected to a start cell has been sensed by step t (`covered_fraction`);
+  pos: the team's probability of success (`team_pos()`, against the episode's prior) has reached `cfg.pos_goal`.
 With `stop_at_success` (test episodes) a successful episode freezes; training episodes run on.
+
+Prior and detector (swarmctl.world.prior): `reset(..., prior=...)` gives every episode a prior over its
+free cells (uniform when none). A pass over a cell is its entry into a vehicle's disc (the starts' discs,
+then the cells of the disc at the cell a vehicle reaches that the disc it left did not hold; staying adds
+none); the world counts the team's passes per cell (`passes`, what was truly flown), and each vehicle the
+passes it knows of (its own and those in the messages it received, as `explored` is shared). With
+`cfg.pod` < 1 a target entering a vehicle's disc is detected with
+probability pod, one draw per (episode, step, vehicle, target) from the world's DETECTIONS stream; an
+undetected target stays unknown (not among the known targets, not found, no hovering on it), and the
+value map a vehicle sees is made from the targets it knows. `team_pos()` is 1 - the prior's residual after
+the team's passes; `pos_trace` holds it after every step, `pos_step` the step it first reached pos_goal.
 
 Each vehicle has its own knowledge (explored mask, where it believes the others are and whether they
 hover on a target). After every move each vehicle senses the disc of radius zeta around itself and
@@ -26,16 +38,18 @@ observation built from them. With `cfg.guard` the safety guard (swarmctl.world.g
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
 
 from swarmctl.errors import ScenarioError
+from swarmctl.world import prior as prior_model
 from swarmctl.world.beliefs import PAPER_VARIANT, Beliefs, ObservationSettings
 from swarmctl.world.channel import Channel
 from swarmctl.world.config import WorldConfig
+from swarmctl.world.draws import DETECTIONS, uniform
 from swarmctl.world.guard import guard_moves
 from swarmctl.world.moves import MOVES, STAY, cell_table, move_table
 from swarmctl.world.observe import build_observations, observe
@@ -58,10 +72,20 @@ class SearchEnv:
 
     _disc_table: np.ndarray  # (W * H, D) the flat cells of each cell's sensing disc (reset_to)
 
-    def __init__(self, cfg: WorldConfig, batch: int = 1, stop_at_success: bool = True, observations: bool = True):
+    def __init__(
+        self,
+        cfg: WorldConfig,
+        batch: int = 1,
+        stop_at_success: bool = True,
+        observations: bool = True,
+        track_pos: bool | None = None,
+    ):
         if batch < 1:
             raise ScenarioError(f"batch {batch} must be >= 1")
         self.cfg = cfg
+        # the team's passes and POS cost a step about as much as the rest of it: kept when asked, or when the
+        # episode needs them (pod < 1, a prior, the pos finish line), never for the paper's training
+        self.track_pos = track_pos
         self.batch = batch
         self.stop_at_success = stop_at_success
         self.observations = observations
@@ -74,23 +98,38 @@ class SearchEnv:
 
     # ----- episode set-up -------------------------------------------------------------------
     def reset(
-        self, seed: int = 0, episodes: Iterable[int] | None = None, blocked: np.ndarray | None = None
+        self,
+        seed: int = 0,
+        episodes: Iterable[int] | None = None,
+        blocked: np.ndarray | None = None,
+        prior: np.ndarray | None = None,
     ) -> np.ndarray | None:
         """Start B episodes; episode indices default to 0..B-1. Returns observations (or None).
         `blocked` (W, H) bool: every episode on this fixed map (a real area's grid), targets and
-        starts drawn on it (scenario.generate_scenario)."""
+        starts drawn on it (scenario.generate_scenario). `prior` (W, H) non-negative weights: where the
+        person is likely to be, normalised over each episode's free cells (None: uniform); the scenario
+        `prior` draws the targets from it."""
         ids = list(range(self.batch) if episodes is None else episodes)
         if len(ids) != self.batch:
             raise ScenarioError(f"reset got {len(ids)} episode indices for a batch of {self.batch}")
-        scenarios = [generate_scenario(self.cfg, seed, int(i), blocked) for i in ids]
-        return self.reset_to(scenarios, seed=seed, episodes=ids)
+        if prior is not None:
+            shape = blocked.shape if blocked is not None else (self.cfg.map_size, self.cfg.map_size)
+            if np.shape(prior) != shape:
+                raise ScenarioError(f"prior: shape {np.shape(prior)} is not the map's {shape}")
+        scenarios = [generate_scenario(self.cfg, seed, int(i), blocked, prior) for i in ids]
+        return self.reset_to(scenarios, seed=seed, episodes=ids, prior=prior)
 
     def reset_to(
-        self, scenarios: list[Scenario], seed: int = 0, episodes: Iterable[int] | None = None
+        self,
+        scenarios: list[Scenario],
+        seed: int = 0,
+        episodes: Iterable[int] | None = None,
+        prior: np.ndarray | None = None,
     ) -> np.ndarray | None:
         """Start from given scenarios (hand-built cases, real maps). All share one grid size.
         `seed`: the episode seed (as given to reset); `episodes`: their ids (default 0..B-1). The ids key
-        the policies' random draws; seed and ids key the channel's message losses (Channel.lost)."""
+        the policies' random draws; seed and ids key the channel's message losses (Channel.lost).
+        `prior`: (W, H) or (B, W, H) weights, normalised over each episode's free cells (None: uniform)."""
         if len(scenarios) != self.batch:
             raise ScenarioError(f"reset_to got {len(scenarios)} scenarios for a batch of {self.batch}")
         self.scenarios = scenarios
@@ -137,8 +176,11 @@ class SearchEnv:
         self._reachable = (
             reachable_from(~self.obstacles, self.pos).reshape(b, -1) if finish == "covered" else None
         )  # covered: free cells 4-connected to a start
-        self._sense_and_share()
+        self._reset_search(prior)
+        self._came_from: np.ndarray | None = None  # (B, U) the cells the vehicles looked from before this step
+        self._sense_and_share(np.ones((b, self.uavs), dtype=bool))
         self._record_sensing()
+        self._record_pos()
         self.last_observations = self.observe() if self.observations else None
         return self.last_observations
 
@@ -164,6 +206,8 @@ class SearchEnv:
             refused = code != 0
             target = prop[..., 0] * self.height + prop[..., 1]
         dest = np.where(valid, target, self._cell)
+        moved = dest != self._cell  # a pass: the vehicle has just reached its cell
+        self._came_from = self._cell
         self._cell = dest
         self.pos = self._cells[dest]
 
@@ -176,10 +220,11 @@ class SearchEnv:
 
         self.t += 1
         fresh = self._fresh_cells() if cfg.explore_reward else None
-        self._sense_and_share()
+        self._sense_and_share(moved)
+        self._record_pos()
         if cfg.finish == "held":
             success = on_target.all(1) & ~any_collision
-        else:  # found / covered read what the discs sensed on arrival
+        else:  # found / covered / pos read what the discs sensed on arrival
             self._record_sensing()
             success = self._finished()
         running = ~self.done
@@ -211,14 +256,20 @@ class SearchEnv:
         if self._sensed is None:
             return
         self._sensed[self._bi, self._disc_table[self._cell].reshape(self.batch, -1)] = True
-        new = (self.found_step < 0) & self._sensed[self._bi, self._target_cells]
+        if self.detected is None:  # pod 1: a target in a disc is found
+            new = (self.found_step < 0) & self._sensed[self._bi, self._target_cells]
+        else:
+            new = (self.found_step < 0) & self.detected
         self.found_step[new] = self.t
 
     def _finished(self) -> np.ndarray:
-        """(B,) bool: the finish line `found` or `covered` is reached."""
+        """(B,) bool: the finish line `found`, `covered` or `pos` is reached."""
         if self.cfg.finish == "found":
             found = np.asarray((self.found_step >= 0).all(1))  # (an array: numpy's stubs allow a scalar)
             return found
+        if self.cfg.finish == "pos":
+            reached: np.ndarray = self.pos_step >= 0
+            return reached
         assert self._reachable is not None and self._sensed is not None  # finish "covered"
         covered: np.ndarray = ~(self._reachable & ~self._sensed).any(1)
         return covered
@@ -233,13 +284,113 @@ class SearchEnv:
         sensed = (self._reachable & self._sensed).sum(1)
         return np.where(reachable > 0, sensed / np.maximum(reachable, 1), 1.0)
 
+    # ----- prior, passes and detections ------------------------------------------------------
+    def _reset_search(self, prior: np.ndarray | None) -> None:
+        """The episode's prior, pass counts, detections and POS record, before the starts' passes."""
+        b, u, k = self.batch, self.uavs, self.targets.shape[1]
+        free = ~self.obstacles
+        weights = np.ones(free.shape) if prior is None else np.broadcast_to(np.asarray(prior, np.float64), free.shape)
+        self.uniform_prior = prior is None
+        self.prior = prior_model.normalise_prior(weights, free)  # (B, W, H)
+        self._free_cells = free
+        self.passes = np.zeros((b, self.width * self.height), dtype=np.uint8)  # the team's: what was flown
+        # POS kept as it changes (a few cells a step): the prior's total and the residual left on the map
+        self._prior_flat = self.prior.reshape(b, -1)
+        self._prior_total = self._prior_flat.sum(1)
+        self._left = self._prior_total.copy()
+        self._miss = prior_model.miss_table(self.cfg.pod)
+        self._disc_inside = _disc_inside(self.width, self.height, self._offsets)
+        certain = self.cfg.pod >= 1.0
+        # pod < 1: what each vehicle knows (passes, targets detected); pod 1 reads them off `explored`
+        self.believed_passes = None if certain else np.zeros((b, u, self.width * self.height), dtype=np.uint8)
+        self.known_targets = None if certain else np.zeros((b, u, k), dtype=bool)
+        self.detected = None if certain else np.zeros((b, k), dtype=bool)  # the team's detections
+        self.pos_trace: list[np.ndarray] = []  # (B,) POS after the starts' passes, then after every step
+        self.pos_step = np.full(b, -1, dtype=np.int64)  # the step POS first reached cfg.pos_goal
+        wanted = self.cfg.pod < 1.0 or self.cfg.finish == "pos" or prior is not None
+        self._tracking = wanted if self.track_pos is None else (self.track_pos or wanted)
+
+    def _count_passes(self, moved: np.ndarray) -> np.ndarray | None:
+        """Add the passes of the vehicles that `moved` (B, U) to the team's counts; returns each vehicle's
+        own looks (B, U, W*H) bool when vehicles keep their own counts (pod < 1), else None."""
+        if not self._tracking:  # (pod < 1 always tracks)
+            return None
+        b, wh = self.batch, self.width * self.height
+        bi, ui = np.nonzero(moved)
+        cells = self._cell[bi, ui]
+        table = self._disc_table[cells]  # (P, D)
+        entering = self._disc_inside[cells]  # (P, D): each disc cell once
+        if self._came_from is not None:  # a cell still in the footprint it left is the same look, no new pass
+            before = self._disc_table[self._came_from[bi, ui]]
+            entering = entering & ~(table[:, :, None] == before[:, None, :]).any(-1)
+        flat = (bi[:, None] * wh + table)[entering]
+        if flat.size:
+            where, looks = np.unique(flat, return_counts=True)
+            counts = self.passes.reshape(-1)
+            old = counts[where]
+            new = np.minimum(old + looks, prior_model.MAX_PASSES).astype(np.uint8)
+            counts[where] = new
+            lost = self._prior_flat.reshape(-1)[where] * (self._miss[old] - self._miss[new])
+            self._left = self._left - np.bincount(where // wh, weights=lost, minlength=b)
+        if self.believed_passes is None:
+            return None
+        own = np.zeros((b, self.uavs, wh), dtype=bool)
+        pi, di = np.nonzero(entering)
+        own[bi[pi], ui[pi], table[pi, di]] = True
+        return own
+
+    def _detect(self, moved: np.ndarray) -> np.ndarray:
+        """(B, U, K) bool: the targets each passing vehicle detects now (pod < 1), one draw each target that
+        has just entered its footprint (one still in the footprint it left is the same look)."""
+        radius2 = self.cfg.fov**2 + 1e-9
+        d2 = ((self.pos[:, :, None, :] - self.targets[:, None, :, :]) ** 2).sum(-1)
+        in_disc = (d2 <= radius2) & moved[..., None]
+        if self._came_from is not None:
+            before = self._cells[self._came_from]  # (B, U, 2)
+            d2_before = ((before[:, :, None, :] - self.targets[:, None, :, :]) ** 2).sum(-1)
+            in_disc &= d2_before > radius2
+        draws = uniform(self.seed, self.episodes, self.t, self._decider_ids, DETECTIONS, (self.targets.shape[1],))
+        result: np.ndarray = in_disc & (draws < self.cfg.pod)
+        return result
+
+    def _record_pos(self) -> None:
+        """Append the team's POS now; date the episodes reaching pos_goal."""
+        if not self._tracking:
+            return
+        now = self.team_pos()
+        self.pos_trace.append(now)
+        self.pos_step[(self.pos_step < 0) & (now >= self.cfg.pos_goal - 1e-9)] = self.t
+
+    def team_pos(self) -> np.ndarray:
+        """(B,) the team's probability of success so far: 1 - the residual of the episode's prior after the
+        passes flown (uniform prior when none was given; the explored share of the free cells at pod 1)."""
+        if not self._tracking:
+            raise RuntimeError("the team's POS is not tracked: make the SearchEnv with track_pos=True")
+        result: np.ndarray = np.clip(self._prior_total - self._left, 0.0, 1.0)
+        return result
+
+    def density(self, passes: np.ndarray, rows: slice | np.ndarray = slice(None)) -> np.ndarray:
+        """(B', U, W, H) float32 the residual density (prior.density) of the episodes `rows` after `passes`
+        (B', U, W, H): pass counts, or explored masks at pod 1."""
+        free = self._free_cells[rows]
+        return prior_model.density(self.prior[rows][:, None], passes, self.cfg.pod, free[:, None])
+
     # ----- knowledge ------------------------------------------------------------------------
-    def _sense_and_share(self) -> None:
-        """Each vehicle senses its disc and broadcasts it with its position through the channel."""
+    def _sense_and_share(self, moved: np.ndarray) -> None:
+        """Each vehicle senses its disc and broadcasts it with its position through the channel; the
+        vehicles that `moved` (B, U) make a pass (passes counted, targets detected)."""
         b, u, w, h = self.batch, self.uavs, self.width, self.height
         disc = self._disc_table[self._cell]  # (B, U, D) flat cells
         explored = self.explored.reshape(b, u, w * h)
         kind = self.channel.kind
+        own = self._count_passes(moved)
+        delivered = None if kind == "ideal" else self._deliveries()  # (B, receiver, sender)
+        if own is not None and self.detected is not None:  # pod < 1
+            found = self._detect(moved)
+            self.detected = self.detected | found.any(1)
+            known = self._share_search(own, found, delivered)
+            on = (self.pos[:, :, None, :] == self.targets[:, None, :, :]).all(-1)  # (B, U, K)
+            self._hover = self._hover & (on & known).any(-1)  # a vehicle hovers on a target it knows of only
         if kind == "ideal":  # every vehicle gets every disc, positions and hover flags
             explored[self._bi[:, :, None], np.arange(u)[None, :, None], disc.reshape(b, 1, -1)] = True
             # new arrays, as below: beliefs handed out earlier keep what they were given
@@ -248,13 +399,30 @@ class SearchEnv:
             return
         if kind == "none":
             explored[self._bi[:, :, None], np.arange(u)[None, :, None], disc] = True
-        delivered = self._deliveries()  # (B, receiver, sender)
+        assert delivered is not None  # (made above for every channel but ideal)
         if kind != "none":
             sensed = np.zeros((b, u, w * h), dtype=bool)
             sensed[self._bi[:, :, None], np.arange(u)[None, :, None], disc] = True
             explored |= (delivered.astype(np.float32) @ sensed.astype(np.float32)) > 0
         self.known_pos = np.where(delivered[..., None], self.pos[:, None, :, :], self.known_pos)
         self.known_hover = np.where(delivered, self._hover[:, None, :], self.known_hover)
+
+    def _share_search(self, own: np.ndarray, found: np.ndarray, delivered: np.ndarray | None) -> np.ndarray:
+        """pod < 1: each vehicle's passes and detections now (own (B, U, W*H), found (B, U, K)) reach the
+        vehicles the channel delivers them to (None: ideal, every vehicle), as explored cells do; returns
+        the targets each vehicle knows of (B, U, K)."""
+        assert self.believed_passes is not None and self.known_targets is not None
+        if delivered is None:
+            looks = np.broadcast_to(own.sum(1, dtype=np.int64)[:, None], own.shape)
+            heard = np.broadcast_to(np.asarray(found.any(1))[:, None], found.shape)
+        else:
+            links = delivered.astype(np.float32)
+            looks = np.rint(links @ own.astype(np.float32)).astype(np.int64)
+            heard = np.asarray(links @ found.astype(np.float32)) > 0
+        self.believed_passes = prior_model.add_passes(self.believed_passes, looks)
+        known: np.ndarray = self.known_targets | heard
+        self.known_targets = known
+        return known
 
     def hovering_now(self) -> np.ndarray:
         """(B, U) bool: the vehicle is on a target and no lower-numbered vehicle is on the same cell: it
@@ -300,19 +468,63 @@ class SearchEnv:
             return _no_obstacles(explored.shape) if self._obstacle_free else explored & obstacles[:, None]
 
         targets = self.target_mask[rows]
+        known_targets = lambda: explored & targets[:, None]  # noqa: E731
+        value = lambda: masked(seen)  # noqa: E731
+        phi_hat = lambda: masked(phi)  # noqa: E731
+        density: Callable[[], np.ndarray] | None = None
+        passes: Callable[[], np.ndarray] | None = None
+        shape = explored.shape
+        if self.believed_passes is not None and self.known_targets is not None:  # pod < 1
+            counts = self.believed_passes[rows].reshape(shape)
+            passes = lambda: counts  # noqa: E731
+            density = lambda: self.density(counts, rows)  # noqa: E731
+            known = self.known_targets[rows]
+            cells = self.targets[rows]
+            known_targets, phi_hat, value = self._known_maps(known, cells, explored, obstacles)
+        elif not self.uniform_prior:  # pod 1: a cell explored once is cleared
+            density = lambda: self.density(explored, rows)  # noqa: E731
         return Beliefs(
             explored,
-            lambda: masked(phi),
+            phi_hat,
             known_obstacles,
-            lambda: explored & targets[:, None],
+            known_targets,
             self.known_pos[rows],
             self.known_hover[rows],
             self._decider_ids[rows],
             self.episodes[rows],
             self.t,
             self.settings,
-            value=lambda: masked(seen),
+            value=value,
+            density=density,
+            passes=passes,
+            pod=self.cfg.pod,
         )
+
+    def _known_maps(
+        self, known: np.ndarray, cells: np.ndarray, explored: np.ndarray, obstacles: np.ndarray
+    ) -> tuple[Callable[[], np.ndarray], Callable[[], np.ndarray], Callable[[], np.ndarray]]:
+        """pod < 1: the known targets (B, U, W, H), phi_hat and the value channel made from the targets each
+        vehicle knows of (`known` (B, U, K) of the targets `cells` (B, K, 2)): an undetected target
+        shows nowhere."""
+        b, u, w, h = explored.shape
+        where = np.where(known[..., None], cells[:, None], -(10 * (w + h)))  # unknown targets: far off the map
+        rho = np.float32(self.cfg.rho)
+
+        def targets() -> np.ndarray:
+            out = np.zeros(explored.shape, dtype=bool)
+            bi, ui, ki = np.nonzero(known)
+            out[bi, ui, cells[bi, ki, 0], cells[bi, ki, 1]] = True
+            return out
+
+        def phi_known() -> np.ndarray:
+            phi = value_map(where, w, h, self.cfg.sigma2, self.cfg.phi_cutoff)
+            return np.where(explored, phi, np.float32(1.0)).astype(np.float32)
+
+        def value() -> np.ndarray:
+            phi = value_map(where, w, h, self.cfg.sigma2, self.cfg.phi_cutoff) - rho * obstacles[:, None]
+            return np.where(explored, phi, np.float32(1.0)).astype(np.float32)
+
+        return targets, phi_known, value
 
     def observe(self, remove_taken: bool | None = None) -> np.ndarray:
         """(B, U, 3, F, F) float32 observations for every vehicle (remove_taken: default the world's).
@@ -321,7 +533,7 @@ class SearchEnv:
         behind the beliefs (the same builder, observe.build_observations, on the same values:
         tests/test_fast_paths.py holds them equal), which saves a third of a step at batch 1."""
         taken = self.cfg.remove_taken if remove_taken is None else remove_taken
-        if taken or self.settings.variant != PAPER_VARIANT:
+        if taken or self.settings.variant != PAPER_VARIANT or self.known_targets is not None:
             return observe(self.beliefs(), taken)
         value = np.ones(self.explored.shape, dtype=np.float32)
         np.copyto(value, self._seen_value[:, None], where=self.explored)
@@ -334,6 +546,16 @@ class SearchEnv:
 def _no_obstacles(shape: tuple[int, ...]) -> np.ndarray:
     """An all-False, read-only view of `shape`: the known obstacles of an obstacle-free world."""
     return np.broadcast_to(False, shape)
+
+
+def _disc_inside(width: int, height: int, offsets: np.ndarray) -> np.ndarray:
+    """(W*H, D) bool: which entries of _disc_table are cells of the disc (the others repeat the centre),
+    so that each cell of a disc is counted once."""
+    xs, ys = np.meshgrid(np.arange(width), np.arange(height), indexing="ij")
+    cx = xs.ravel()[:, None] + offsets[:, 0]
+    cy = ys.ravel()[:, None] + offsets[:, 1]
+    result: np.ndarray = (cx >= 0) & (cx < width) & (cy >= 0) & (cy < height)
+    return result
 
 
 def _disc_table(width: int, height: int, offsets: np.ndarray) -> np.ndarray:

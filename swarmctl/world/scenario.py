@@ -15,6 +15,7 @@ import numpy as np
 from swarmctl.errors import ScenarioError
 from swarmctl.world.config import WorldConfig
 from swarmctl.world.paths import largest_free_region
+from swarmctl.world.prior import draw_cells
 
 MAX_ATTEMPTS = 100
 MAX_OBSTACLE_FAILURES = 50
@@ -51,11 +52,20 @@ def _draw(rng: np.random.Generator, weights: np.ndarray) -> int:
     return int(rng.choice(weights.size, p=weights / total))
 
 
-def place_targets(cfg: WorldConfig, rng: np.random.Generator, allowed: np.ndarray | None = None) -> np.ndarray:
+def place_targets(
+    cfg: WorldConfig, rng: np.random.Generator, allowed: np.ndarray | None = None, prior: np.ndarray | None = None
+) -> np.ndarray:
     """Targets by the paper's sequential rules; returns (K, 2) cells. `allowed` (W, H) bool, for a
-    fixed map: targets only there (its shape is the map's); None: anywhere on the M x M map."""
+    fixed map: targets only there (its shape is the map's); None: anywhere on the M x M map. The
+    scenario `prior` draws the K targets from `prior` (W, H) without replacement (uniform when None),
+    within `allowed`, with no spacing rule."""
     k = cfg.targets
     width, height = allowed.shape if allowed is not None else (cfg.map_size, cfg.map_size)
+    if cfg.scenario == "prior":
+        weights = np.ones((width, height)) if prior is None else np.asarray(prior, dtype=np.float64)
+        if allowed is not None:
+            weights = np.where(allowed, weights, 0.0)
+        return draw_cells(weights, k, rng)
     cells = _cell_coords(width, height).astype(np.float64)
     n = cells.shape[0]
     where = allowed.ravel().astype(np.float64) if allowed is not None else 1.0
@@ -155,21 +165,24 @@ def place_starts(cfg: WorldConfig, obstacles: np.ndarray, targets: np.ndarray, r
     return np.stack(np.unravel_index(picked, free.shape), axis=1).astype(np.int64)
 
 
-def generate_scenario(cfg: WorldConfig, seed: int, episode: int, blocked: np.ndarray | None = None) -> Scenario:
+def generate_scenario(
+    cfg: WorldConfig, seed: int, episode: int, blocked: np.ndarray | None = None, prior: np.ndarray | None = None
+) -> Scenario:
     """Episode `episode` of the run with `seed`: targets, then obstacles, then start cells.
 
     `blocked` (W, H) bool is a fixed map (a real area's grid): its blocked cells are the obstacles
     (cfg.map_size and cfg.obstacles do not apply), and targets and starts are drawn by the same
-    rules among the cells of its largest connected free region, so every target can be reached."""
+    rules among the cells of its largest connected free region, so every target can be reached.
+    `prior` (W, H) weights: where the scenario `prior` draws the targets (uniform when None)."""
     rng = episode_rng(seed, episode)
     region = largest_free_region(blocked) if blocked is not None else None
     for _ in range(MAX_ATTEMPTS):
         try:
             if region is not None and blocked is not None:  # (one is None only with the other)
-                targets = place_targets(cfg, rng, allowed=region)
+                targets = place_targets(cfg, rng, allowed=region, prior=prior)
                 starts = place_starts(cfg, ~region, targets, rng)
                 return Scenario(targets=targets, obstacles=blocked.copy(), starts=starts, obstacle_rects=[])
-            targets = place_targets(cfg, rng)
+            targets = place_targets(cfg, rng, prior=prior)
             obstacles, rects = place_obstacles(cfg, targets, rng)
             starts = place_starts(cfg, obstacles, targets, rng)
             return Scenario(targets=targets, obstacles=obstacles, starts=starts, obstacle_rects=rects)
