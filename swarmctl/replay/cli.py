@@ -134,6 +134,19 @@ def _frame_range(replay, first: int | None, last: int | None) -> tuple[int, int]
     help="--verify, softmax policies: where the draw cannot be reproduced, a recorded move less likely than this "
     "under the model is a mismatch.",
 )
+@click.option(
+    "--gaps",
+    is_flag=True,
+    help="Also write gaps.geojson, gaps.kml and gaps.prior.geojson: the cells still worth searching, merged into "
+    "polygons with the probability left in each, and that as a prior for the next mission (docs/recording.md).",
+)
+@click.option(
+    "--gaps-min",
+    type=real(0, None),
+    default=None,
+    help="--gaps: a cell is left when it holds more than this times a uniform prior's cell before the search "
+    "(default: any probability when pod is 1, else 0.1).",
+)
 @click.option("--quiet", "-q", is_flag=True, help="Print nothing; no progress bar.")
 def replay_command(
     recording: Path,
@@ -150,23 +163,22 @@ def replay_command(
     verify: bool,
     model: Path | None,
     min_probability: float,
+    gaps: bool,
+    gaps_min: float | None,
     quiet: bool,
 ) -> None:
     """Replay a recording folder (fly, agent, demo) or a .tlog (MAVProxy, QGroundControl, SITL).
 
     Writes map.html (offline map page with a time slider), panels-step-N.png (positions, known map,
     true map), animation.gif (and .mp4 with ffmpeg), tracks.geojson / tracks.kml, targets.geojson /
-    targets.kml, the plots and summary.txt. Damaged logs are replayed as far as they can be read, and
+    targets.kml, the plots and summary.txt (with --gaps also gaps.geojson, gaps.kml and gaps.prior.geojson:
+    what is left to search). Damaged logs are replayed as far as they can be read, and
     what was skipped is listed. With --verify: check the recorded decisions instead (docs/recording.md).
     """
     from tqdm import tqdm
 
     from swarmctl.replay import recording as rmod
-    from swarmctl.replay.page import write_page
-    from swarmctl.replay.panels import write_animation, write_panels
-    from swarmctl.replay.plots import write_plots
-    from swarmctl.replay.summary import summary_lines
-    from swarmctl.replay.tracks import write_tracks
+    from swarmctl.replay.gaps import find_gaps, write_gaps
 
     if basemap is not None and not all(k in basemap for k in ("{z}", "{x}", "{y}")):
         raise InputError(f"--basemap {basemap!r}: the tile URL needs {{z}}, {{x}} and {{y}}")
@@ -174,17 +186,29 @@ def replay_command(
     if not recording.exists():
         raise InputError(f"{recording}: not found; give a recording folder (fly, agent, demo) or a .tlog file")
     folder = _out_dir(recording, out)
+    if verify and (gaps or gaps_min is not None):
+        raise InputError("--gaps writes the replay's outputs and --verify only checks the decisions: give one")
     if verify:
         _verify(recording, folder, model, min_probability, quiet)
         return
     if model is not None:
         raise InputError("--model is for --verify: give --verify too, or leave --model out")
+    if gaps_min is not None and not gaps:
+        raise InputError("--gaps-min is for --gaps: give --gaps too, or leave --gaps-min out")
     source = recording / "mission.tlog" if recording.is_dir() else recording
     size = source.stat().st_size if source.is_file() else 0
     with tqdm(
         total=size, unit="B", unit_scale=True, desc="reading", disable=quiet, delay=0.5, leave=False, mininterval=1.0
     ) as bar:
         replay = rmod.load(recording, list(vehicles) or None, grid_file, buildings, progress=bar.update)
+    left = find_gaps(replay, gaps_min) if gaps else None  # a bad prior line fails before the pictures
+
+    from swarmctl.replay.page import write_page
+    from swarmctl.replay.panels import write_animation, write_panels
+    from swarmctl.replay.plots import write_plots
+    from swarmctl.replay.summary import summary_lines
+    from swarmctl.replay.tracks import write_tracks  # the mission's target writers: a second or two to import
+
     first, last = _frame_range(replay, from_step, to_step)
     require_memory(
         (last - first + 1) * ANIMATION_FRAME_BYTES,
@@ -205,6 +229,9 @@ def replay_command(
     written += write_tracks(replay, folder)
     written += write_plots(replay, folder)
     lines = summary_lines(replay)
+    if left is not None:
+        written += write_gaps(left, replay.name, folder)
+        lines += left.summary_lines(replay.grid.cell)
     text = folder / "summary.txt"
     text.write_text("\n".join(lines) + "\n", encoding="utf-8")
     written.append(text)
