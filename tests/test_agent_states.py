@@ -52,8 +52,9 @@ def test_the_machine_has_the_documented_transitions_and_nothing_else():
     # a lost vehicle is never failed or hovering; back in a pilot's mode it is the pilot's
     assert TRANSITIONS[State.LOST] == {State.REJOIN, State.OVERRIDE, State.ENDED}
     assert TRANSITIONS[State.ENDED] == set()
-    for s in (State.OVERRIDE, State.LOW_BATTERY):  # once the pilot or the battery has it, only the end
-        assert TRANSITIONS[s] == {State.ENDED}
+    assert TRANSITIONS[State.OVERRIDE] == {State.ENDED}  # once the pilot has it, only the end
+    # home on low battery: back with a fresh battery, or the pilot's
+    assert TRANSITIONS[State.LOW_BATTERY] == {State.REJOIN, State.OVERRIDE, State.ENDED}
 
 
 def test_a_transition_the_machine_lacks_is_refused_and_staying_is_not_a_change():

@@ -305,7 +305,9 @@ def _mission() -> st.SearchStrategy:
     extra = st.fixed_dictionaries(
         {
             "name": st.from_regex(r"\A[A-Za-z0-9][A-Za-z0-9_.-]{0,20}\Z"),
-            "policy": st.sampled_from(["frontier", "random", "la:3", "ddql:m.pt", "ddql-greedy:m.pt:taken=keep"]),
+            "policy": st.sampled_from(
+                ["frontier", "random", "la:3", "ddql:m.pt", "ddql-greedy:m.pt:taken=keep", "pattern:sector"]
+            ),
         },
         optional={
             "signing_key": st.just("swarm.key"),
@@ -325,8 +327,12 @@ def _battery(b: dict) -> dict:
 
 def _finish(d: dict) -> dict:
     """The finish line as the spec wants it: finish held (given or default) neither marks nor expects more
-    targets than vehicles."""
+    targets than vehicles. And a pattern's keys with a pattern only: lkp with it, spacing_m nowhere else."""
     m = d["mission"]
+    if m["policy"].startswith("pattern:"):
+        m["lkp"] = [41.8819, -87.6278]
+    else:
+        m.pop("spacing_m", None)
     if m.get("finish", "held") == "held":
         if m.get("on_find") == "mark":
             m["on_find"] = "hold"

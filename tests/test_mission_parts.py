@@ -18,7 +18,7 @@ from swarmctl.mission.crew import Crew
 from swarmctl.mission.ending import Ending
 from swarmctl.mission.launch import Launch
 from swarmctl.mission.rounds import Rounds
-from swarmctl.mission.spec import VehicleSpec
+from swarmctl.mission.spec import BatteryTable, VehicleSpec
 from swarmctl.mission.state import MissionState
 from swarmctl.mission.watch import NOT_COMMANDED, Watch
 from tests.mavlink_support import run
@@ -229,13 +229,15 @@ def test_a_vehicle_back_on_course_clears_its_alarm():
 # --- Rounds: when the search ends, and who parks ---------------------------------------------------------
 
 
-def rounds(swarm: Crew, *, classic: bool = True, parks: bool = True, time_limit: float = 60.0) -> Rounds:
+def rounds(
+    swarm: Crew, *, classic: bool = True, parks: bool = True, time_limit: float = 60.0, hover: str = "defer"
+) -> Rounds:
     state = MissionState()
     state.search_started = time.monotonic()
     finish = SimpleNamespace(classic=classic, marks=False, check=lambda: None)
-    policy = SimpleNamespace(parks=lambda known, vehicles: parks)
+    policy = SimpleNamespace(parks=lambda known, vehicles: parks, hover=hover)
     timing = SimpleNamespace(time_limit=time_limit)
-    battery = SimpleNamespace(return_below=20)
+    battery = BatteryTable(return_below=20)
     return Rounds(timing, battery, policy, None, swarm.rec, state, swarm, None, None, None, finish)
 
 
@@ -265,6 +267,24 @@ def test_a_vehicle_on_a_known_target_parks_when_the_hover_rule_lets_it_and_nobod
     assert a.state is State.SEARCH  # the rule defers the hover
     rounds(crew(a, b), parks=True).update_states()
     assert a.state is State.HOVER and b.state is State.SEARCH
+
+
+def test_under_the_hover_rule_no_the_swarm_holds_once_every_vehicle_sits_on_a_target_of_its_own():
+    a, b = agent(0, State.SEARCH, (1, 1)), agent(1, State.SEARCH, (2, 2))
+    for x in (a, b):
+        x.knowledge.add_targets(np.array([[1, 1], [3, 3]]), step=1)
+    r = rounds(crew(a, b), parks=False, hover="no")
+    r.update_states()
+    assert a.state is State.SEARCH and b.state is State.SEARCH  # b is on no target: nobody parks on the way
+    b.cell = (3, 3)
+    r.update_states()
+    assert a.state is State.HOVER and b.state is State.HOVER  # both on targets of their own: held
+    assert r.ended() == "complete"
+    c, d = agent(0, State.SEARCH, (1, 1)), agent(1, State.SEARCH, (1, 1))
+    for x in (c, d):
+        x.knowledge.add_targets(np.array([[1, 1]]), step=1)
+    rounds(crew(c, d), parks=False, hover="no").update_states()
+    assert c.state is State.SEARCH and d.state is State.SEARCH  # one target for two: not held
 
 
 # --- Ending ----------------------------------------------------------------------------------------------

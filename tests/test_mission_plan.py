@@ -169,7 +169,7 @@ def test_the_demo_flies_its_own_settings_over_a_mission_files(tmp_path):
 
 def test_the_simulated_detectors_sense_the_plans_fov():
     grid = small_grid(20, 20)
-    trained_at_2 = SimpleNamespace(spec="frontier", fov=2.0)  # what a model trained with fov 2 reports
+    trained_at_2 = SimpleNamespace(spec="frontier", fov=2.0, follows_routes=False)  # a model trained with fov 2
     with SimSwarm(grid, uavs=2, seed=0) as swarm:
         plan = swarm.plan(trained_at_2)
         assert plan.fov == 2.0 and plan.spec.mission.footprint_m == 20.0

@@ -33,6 +33,7 @@ KINDS = {
     "latlons": st.lists(_latlon, max_size=4),
     "ints": st.lists(st.integers(-(10**6), 10**6), max_size=5),
     "numbers": st.lists(_number, max_size=5),
+    "number rows": st.lists(st.lists(_number, max_size=3), max_size=3),
     "strs": st.lists(st.text(max_size=6), max_size=4),
 }
 

@@ -34,6 +34,7 @@ from swarmctl.learn.search_recipe import (
     train,
     trajectories,
 )
+from swarmctl.mission.decide import FieldPolicy
 from swarmctl.policy.base import allowed_moves
 from swarmctl.policy.coordinated import CoordinatedPolicy
 from swarmctl.policy.registry import make_policy
@@ -209,6 +210,9 @@ def test_a_tiny_run_trains_saves_resumes_and_ends_where_an_unbroken_one_does(tmp
     assert (policy.hover, policy.mask, policy.remove_taken) == ("first", True, True)
     paper = make_policy(f"ddql:{ROOT / 'models' / 'cluster-2uav.pt'}")  # no recipe: the old defaults
     assert (paper.hover, paper.mask, paper.remove_taken) == ("first", True, True)
+    # a mission flies the recipe's rule too; the paper's networks defer there, as before
+    assert FieldPolicy(f"ddql:{out}").hover == "no"
+    assert FieldPolicy(f"ddql:{ROOT / 'models' / 'cluster-2uav.pt'}").hover == "defer"
 
     with pytest.raises(InputError, match="holds no state to resume"):  # a finished run
         train(TINY_WORLD, cfg, out, progress=False, resume=True)

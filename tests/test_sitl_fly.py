@@ -36,6 +36,8 @@ MIN_CELLS = 3  # distinct cells per vehicle in CI's short search (kept short for
 PX4_MIN_CELLS = 7
 FOV = 3  # the planners' sensing radius in cells (the mission's footprint)
 DDQL = "ddql:models/obstacles-3uav.pt:straggler=frontier"
+COVERED_GRID = small_grid(6, 6)
+COVERED_LKP = COVERED_GRID.cell_to_latlon(1, 1)  # the parallel track's last known point, inside its area
 
 
 def kill_then_terminate(victim: str, survivors: list[str], steps_after: int = 3):
@@ -66,14 +68,16 @@ SCENARIOS = {
         Scenario("trio", TRIO, time_limit=20.0),
         Scenario("trio-ddql", TRIO, time_limit=20.0, policy=DDQL),
         Scenario("detector", [Craft("alpha", ARDUCOPTER, (0, 0), detector=True)], time_limit=40.0, targets=((3, 3),)),
-        # a finish line of the mission file: a 6 x 6 grid (a 2 x 2 block in the middle) covered ends it
+        # a finish line of the mission file: a 6 x 6 grid (a 2 x 2 block in the middle) covered ends it, the
+        # vehicles flying a parallel track (lanes 30 m apart, one each) from a last known point
         Scenario(
             "covered",
             [Craft("alpha", ARDUCOPTER, (0, 0)), Craft("bravo", ARDUCOPTER, (2, 0))],
             time_limit=120.0,
             end_action="land",
-            grid=small_grid(6, 6),
-            mission={"finish": '"covered"'},
+            policy="pattern:parallel",
+            grid=COVERED_GRID,
+            mission={"finish": '"covered"', "lkp": f"[{COVERED_LKP[0]!r}, {COVERED_LKP[1]!r}]", "spacing_m": "30.0"},
         ),
         # the kill scenarios end by SIGTERM; the time limit only bounds a search whose vehicles come up late
         Scenario("kill", TRIO, time_limit=300.0, during=kill_then_terminate("charlie", ["alpha", "bravo"])),
@@ -191,6 +195,7 @@ def test_a_detector_fed_the_real_position_finds_the_target_and_the_vehicle_hover
 def test_two_arducopters_end_a_covered_search_complete_once_every_reachable_cell_is_explored(flights):
     r = flown(flights, "covered")
     assert (r.rc, r.summary["outcome"]) == (0, "complete"), r.describe()
+    assert r.summary["policy"] == "pattern:parallel", r.describe()
     assert r.summary["finish"] == {"rule": "covered", "expected_targets": None, "on_find": "hold", "met": True}
     assert r.summary["covered_fraction"] == 1.0, r.describe()
     assert r.summary["search_time_s"] < r.scenario.time_limit, r.describe()  # the finish line ended it

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import click
@@ -113,7 +114,7 @@ def summary_lines(grid, report, with_buildings: bool) -> list[str]:
     type=whole(1, MAX_PATTERN_UAVS),
     default=DEFAULT_PATTERN_UAVS,
     show_default=True,
-    help="Vehicles sharing the pattern (with --pattern).",
+    help="Vehicles sharing the pattern (with --pattern), and the [[vehicles]] of OUT/mission.toml.",
 )
 @click.option(
     "--spacing",
@@ -140,8 +141,10 @@ def plan_command(
     """Turn a search AREA (GeoJSON, KML or QGroundControl .plan) into a cell grid.
 
     Writes OUT/grid.npz (the grid the controller loads), OUT/grid.geojson (cells with a blocked
-    flag), OUT/area.plan (QGroundControl geofence) and OUT/preview.png. With --pattern and --lkp,
-    also OUT/uav1.plan .. OUT/uavN.plan: each vehicle's share of the search pattern as waypoints.
+    flag), OUT/area.plan (QGroundControl geofence), OUT/preview.png and OUT/mission.toml (a mission
+    for `swarmctl fly` with --uavs vehicles whose connections are to be filled in: the coordinated
+    planner, or with --pattern the pattern flown cell by cell). With --pattern and --lkp, also
+    OUT/uav1.plan .. OUT/uavN.plan: each vehicle's share of the search pattern as waypoints.
     """
     if not margin < altitude:
         raise InputError(f"--margin {margin:g}: the safety margin must be below --altitude ({altitude:g} m)")
@@ -191,6 +194,7 @@ def plan_command(
         ]
         if planned is not None:
             written += _write_routes(the_area, planned, out_dir)
+        written.append(write_mission_file(out_dir, area, uavs, pattern, lkp_point, spacing))
     except OSError as exc:
         raise InputError(
             f"{exc.filename or out_dir}: cannot write the output ({exc.strerror}); choose another --out"
@@ -246,3 +250,75 @@ def _write_routes(area, planned, out_dir: Path) -> list[Path]:
         )
         for route in planned.routes
     ]
+
+
+MISSION_POLICY = "coordinated"  # the policy docs/RESULTS.md measured best on real maps
+
+
+def write_mission_file(
+    out_dir: Path,
+    area: Path,
+    uavs: int,
+    pattern: str | None = None,
+    lkp: tuple[float, float] | None = None,
+    spacing: float | None = None,
+) -> Path:
+    """OUT/mission.toml: a mission over OUT/grid.npz for `swarmctl fly`, with `uavs` vehicles whose
+    connections are placeholders (swarmctl.mission.spec refuses them, naming the vehicle): the pattern
+    flown cell by cell from `lkp`, or the coordinated planner."""
+    from swarmctl.mission.spec import CONNECTION_PLACEHOLDER, NAME_PATTERN
+
+    name = re.sub(r"[^A-Za-z0-9_.-]", "-", out_dir.resolve().name).lstrip("-_.")[:64]
+    name = name if re.match(NAME_PATTERN, name) else "search"
+    lines = [
+        f"# A search of {printable(area.name)} planned by `swarmctl plan` (docs/geo.md). Fill in each vehicle's",
+        "# connection (and check its sysid), then: swarmctl fly mission.toml",
+        "# Every key of every table, with its default: docs/mission.md. Paths are relative to this file.",
+        "",
+        "[mission]",
+        f'name = "{name}"',
+        'grid = "grid.npz"            # written beside this file by `swarmctl plan`',
+    ]
+    if pattern is not None and lkp is not None:
+        lines += [
+            f'policy = "pattern:{pattern}"  # the {pattern} search from lkp, cell by cell (docs/geo.md); '
+            'or "coordinated"',
+            f"lkp = [{lkp[0]!r}, {lkp[1]!r}]  # the last known point [LAT, LON], degrees",
+            f"spacing_m = {spacing!r}  # track spacing, metres"
+            if spacing is not None
+            else "# spacing_m = 60.0           # track spacing, metres; left out: the footprint's diameter",
+        ]
+    else:
+        lines += [
+            f'policy = "{MISSION_POLICY}"       # the best measured on real maps (docs/RESULTS.md); or "frontier", '
+            '"la:4", or a search pattern: "pattern:parallel" with lkp = [LAT, LON]',
+        ]
+    lines += [
+        'end_action = "rtl"           # land | rtl | hover (vehicles on a target hold, the others come home)',
+        'finish = "covered"           # complete once every cell the vehicles can reach is explored; or "held"',
+        '                             # (expected_targets targets hovered on), "found" (that many found) or',
+        '                             # "pos >= 0.9" (the probability of success against the prior)',
+        "# expected_targets = 1       # N for held and found",
+        '# prior = "prior.geojson"    # where the missing person is likely to be (docs/mission.md); left out: every',
+        "                             # free cell equally likely",
+        "# fence = true               # upload the area's boundary to each vehicle as its geofence",
+        "",
+        "[timing]",
+        "step_period = 1.0            # seconds between decisions, at least",
+        "time_limit = 900.0           # seconds of search",
+    ]
+    for k in range(1, uavs + 1):
+        lines += [
+            "",
+            "[[vehicles]]",
+            f'name = "uav{k}"' + (f"  # flies uav{k}.plan's share of the pattern" if pattern else ""),
+            f'connection = "{CONNECTION_PLACEHOLDER}"  # its MAVLink link, e.g. "udpin:0.0.0.0:{14550 + k}" (a '
+            'radio or router sending there), "tcp:127.0.0.1:5760" (SITL) or a serial "/dev/ttyUSB0:57600"',
+            f"sysid = {k}                    # its MAVLink system id: the vehicle's MAV_SYSID (PX4: MAV_SYS_ID); "
+            "unique in the swarm",
+            '# autopilot = "ardupilot"    # refuse a vehicle whose heartbeat says otherwise',
+            '# detector = "mavlink"       # its detector reports on its link; none: a coverage search',
+        ]
+    path = out_dir / "mission.toml"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return path

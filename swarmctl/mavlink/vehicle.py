@@ -423,6 +423,12 @@ class Vehicle(abc.ABC):
         return None
 
     @property
+    def clock_s(self) -> float | None:
+        """The vehicle's own clock from its latest report, seconds since it booted (a simulator's runs at
+        its speed-up); None where the driver has none."""
+        return None
+
+    @property
     def on_ground(self) -> bool:
         """True when the autopilot's own land detector says the vehicle is on the ground (False when it
         says otherwise or nothing)."""

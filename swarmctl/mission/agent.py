@@ -11,7 +11,9 @@ carries out the side effects (cancel a rejoin, send the vehicle home) and the sw
     lost -> override                                           (back in a mode a pilot chose meanwhile)
     search / hover -> override                                 (a pilot's mode, or not commanded:
                                                                 swarmctl.mission.watch)
-    search -> low battery                                      (sent home)
+    search -> low battery                                      (sent home: swarmctl.mission.energy)
+    low battery -> rejoin -> search                            (landed and disarmed with a fresh battery)
+    low battery -> override                                    (armed in a pilot's mode: it stays the pilot's)
     any of them -> failed; any but ended -> ended              (the end action was given)
 """
 
@@ -22,12 +24,20 @@ import time
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
+from swarmctl.mavlink.codec import distance_m
+from swarmctl.mavlink.limits import RESUME_ABOVE_M
+from swarmctl.mission.energy import ChargeLog, home_check
+
 if TYPE_CHECKING:
     from swarmctl.knowledge.exchange import KnowledgeExchange
     from swarmctl.knowledge.model import Knowledge
     from swarmctl.mavlink.codec import Endpoint
     from swarmctl.mission.detector import SensorFeed
+    from swarmctl.mission.energy import HomeCheck
     from swarmctl.mission.spec import VehicleSpec
+
+
+FRESH_RISE = 20  # % a landed vehicle's charge must rise above its lowest to count as a fresh battery
 
 
 class State(StrEnum):
@@ -58,7 +68,7 @@ TRANSITIONS: dict[State, frozenset[State]] = {
     State.LOST: frozenset({State.REJOIN, State.OVERRIDE}),
     State.REJOIN: frozenset({State.SEARCH, State.LOST}),
     State.OVERRIDE: frozenset(),
-    State.LOW_BATTERY: frozenset(),
+    State.LOW_BATTERY: frozenset({State.REJOIN, State.OVERRIDE}),  # a fresh battery; a pilot flying it
     State.FAILED: frozenset(),
     State.ENDED: frozenset(),
 }
@@ -117,6 +127,9 @@ class Agent:
         self.sent_home = False  # the operator sent it home (swarmctl.mission.web): its end action is rtl
         self._accepted = 0
         self.rejoin_task: asyncio.Task | None = None
+        self.charges = ChargeLog()  # its battery reports against its seconds of flight (swarmctl.mission.energy)
+        self.charge_clock: str | None = None  # what those seconds are: "vehicle" (its own clock) or "odometer"
+        self.lowest: int | None = None  # the lowest charge it reported since it was sent home on low battery
 
     @property
     def name(self) -> str:
@@ -147,12 +160,16 @@ class Agent:
         self.state = state
         return True
 
-    def next_state(self, low_battery: int, now: float | None = None) -> tuple[State, dict[str, Any]] | None:
+    def next_state(
+        self, low_battery: int, now: float | None = None, reserve: float | None = None, relaunch_at: int | None = None
+    ) -> tuple[State, dict[str, Any]] | None:
         """The transition the vehicle's own reports call for, with what to record; None: none.
 
         Link lost (now, or briefly since the agent last looked) -> lost; back -> rejoin; a pilot's mode
-        for the autopilot's debounce time -> override (reason "pilot"); a battery below `low_battery` % while
-        searching -> low battery."""
+        for the autopilot's debounce time -> override (reason "pilot"); while searching, a battery below
+        `low_battery` %, or (with `reserve`) below what its return takes plus `reserve` % -> low battery
+        (`home_check`); sent home on low battery, landed and disarmed with a fresh battery of at least
+        `relaunch_at` % (None: never) -> rejoin (`fresh_battery`)."""
         lost = self.vehicle.lost
         now = time.monotonic() if now is None else now
         if self.state in (State.SEARCH, State.HOVER, State.REJOIN) and (lost or self.saw_loss):
@@ -175,9 +192,76 @@ class Agent:
             self.override_reason = "pilot"
             return State.OVERRIDE, {"mode": self.vehicle.mode, "reason": "pilot"}
         battery = self.battery()
-        if self.state is State.SEARCH and battery is not None and battery < low_battery:
-            return State.LOW_BATTERY, {"battery": battery}
+        if self.state is State.SEARCH and battery is not None:
+            if reserve is None:
+                if battery < low_battery:
+                    return State.LOW_BATTERY, {"battery": battery}
+                return None
+            check = self.home_check(battery, low_battery, reserve)
+            if check.go:
+                self.lowest = battery
+                return State.LOW_BATTERY, check.record()
+        if self.state is State.LOW_BATTERY and self.flown_by_pilot(now):
+            self.override_reason = "pilot"
+            return State.OVERRIDE, {"mode": self.vehicle.mode, "reason": "pilot"}
+        if self.state is State.LOW_BATTERY and relaunch_at is not None and battery is not None:
+            if self.fresh_battery(battery, relaunch_at):
+                self.charges.clear()  # the rate of the old battery says nothing of the new one
+                self.lowest = None
+                self.status = f"fresh battery ({battery} %): taking off to rejoin"
+                return State.REJOIN, {"relaunch": True, "battery": battery}
         return None
+
+    def home_check(self, battery: int, floor: int, reserve: float) -> HomeCheck:
+        """The energy rule on what the vehicle reports: its distance to home, its height, its speeds and
+        its measured consumption (only the floor where its position, home or speeds are not known)."""
+        v = self.vehicle
+        pos, home = v.position, getattr(v, "home", None)
+        limits = getattr(v, "limits", None)
+        if pos is None or home is None or limits is None:
+            return home_check(battery, floor, reserve)
+        away = distance_m(pos.lat, pos.lon, home.lat, home.lon)
+        return home_check(battery, floor, reserve, self.charges.rate(), away, max(0.0, pos.rel_alt), limits)
+
+    def flown_by_pilot(self, now: float) -> bool:
+        """Sent home on low battery, it is armed in a pilot's mode other than its own failsafes' (a pilot
+        flies it home or keeps it): it is the pilot's from then on, never relaunched."""
+        info = self.vehicle.autopilot_info
+        if info is None or not self.vehicle.armed or self.vehicle.mode in info.failsafe_modes:
+            self.pilot_since = None
+            return False
+        return self.pilot_has_it(now)
+
+    def fresh_battery(self, battery: int, needed: int) -> bool:
+        """Sent home on low battery, it reports a fresh one: on the ground and disarmed, its link up, at
+        least `needed` % and FRESH_RISE % above the lowest it reported since (a battery recovering its
+        voltage at rest, or the noise of a report, is no new battery)."""
+        self.lowest = battery if self.lowest is None else min(self.lowest, battery)
+        v = self.vehicle
+        if v.lost or v.armed or battery < needed or battery < self.lowest + FRESH_RISE:
+            return False
+        pos = v.position
+        return pos is not None and pos.rel_alt < RESUME_ABOVE_M
+
+    def sample_charge(self) -> None:
+        """The battery's report against the vehicle's seconds, while it flies for the search: its own clock,
+        or where its driver reports none its odometer at its flight speed (swarmctl.mission.energy)."""
+        if not self.live:
+            return
+        battery = self.battery()
+        if battery is None:
+            return
+        seconds = getattr(self.vehicle, "clock_s", None)
+        clock = "vehicle"
+        if seconds is None:
+            limits = getattr(self.vehicle, "limits", None)
+            if limits is None:
+                return
+            seconds, clock = self.distance / limits.speed, "odometer"
+        if clock != self.charge_clock:  # seconds of one clock are no measure against the other's
+            self.charges.clear()
+            self.charge_clock = clock
+        self.charges.add(seconds, float(battery))
 
     def found_on_return(self, now: float) -> dict[str, Any]:
         """What the vehicle reports as its link comes back (the rejoin's record): its mode, whether it is
@@ -228,7 +312,9 @@ class Agent:
         return float(self.vehicle.distance_flown_m)
 
     def track(self) -> None:
-        """Nothing to do each round: the vehicle's odometer follows its telemetry (see `distance`)."""
+        """Each round: the battery's report for the consumption (the odometer follows the telemetry itself:
+        see `distance`)."""
+        self.sample_charge()
 
     def received_since(self) -> int:
         """Knowledge messages accepted (decoded and admitted by the trust checks) since the last call."""

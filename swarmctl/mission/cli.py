@@ -182,6 +182,13 @@ def web_from(web: str | None, web_token_file: str | None) -> WebSetup | None:
     help="At a target found: hold (hover on it) or mark (report it and search on; needs --finish found or "
     "covered). Default: the --mission file's, else hold.",
 )
+@click.option(
+    "--pod",
+    type=real(0.0, 1.0, above=True),
+    default=None,
+    help="The mock detectors' probability of detection: each target in the footprint is reported in a pass "
+    "with this probability (seeded by --seed); the mission's [sensing] pod. Default: the --mission file's, else 1.",
+)
 @view_options
 def demo_command(
     uavs: int,
@@ -201,6 +208,7 @@ def demo_command(
     finish: str | None,
     expected_targets: int | None,
     on_find: str | None,
+    pod: float | None,
     quiet: bool,
     no_live: bool,
     web: str | None,
@@ -255,11 +263,21 @@ def demo_command(
             f"demo: the grid's largest free region has {room + uavs} cells, too few for {uavs} vehicles and "
             f"{uavs} hidden targets; use fewer --uavs or a larger grid"
         )
+    if pod is not None:
+        settings["pod"] = pod
+    detection = pod if pod is not None else (base.sensing.pod if base is not None else 1.0)
     folder = _out_folder(out, "demo")
     model = Channel(channel, cell_size=grid.cell, loss=loss)
     try:
         swarm = SimSwarm(
-            grid, uavs=uavs, seed=seed, speedup=speedup, channel=model, carry_detectors=not no_detectors, **at
+            grid,
+            uavs=uavs,
+            seed=seed,
+            speedup=speedup,
+            channel=model,
+            carry_detectors=not no_detectors,
+            pod=detection,
+            **at,
         )
         if targets is not None and targets != uavs:
             from swarmctl.sim.swarm import hide_targets

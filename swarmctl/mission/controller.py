@@ -96,6 +96,7 @@ class Controller:
         self.crew = Crew(len(spec.vehicles), plan.only, recorder)
         self.finish = FinishLine(plan, self.crew, self.state, recorder, self.gcs)
         self.policy.set_hold(self.finish.to_hold)  # the hover rule parks once that many targets are known
+        self.policy.set_search(self.finish.probability)  # planners go where the probability is
         self.watch = Watch(self.grid, self.guard, spec.flight, recorder, self.state, self.crew)
         self.flight = Flight(
             self.grid,
@@ -200,6 +201,7 @@ class Controller:
             on_find=self.finish.on_find,
             **self.plan.policy.recorded(),
         )
+        self.rec.plain_event("prior", **self.finish.probability.prior_record())  # once; 8 decimals, as rounded
         try:
             self._open()
             await asyncio.gather(*(self.launch.start(a) for a in self.crew.agents))

@@ -8,7 +8,8 @@ some) and kinds it does not name are skipped; `check_event(..., strict=True)` al
 a test can hold a fresh recording to the table.
 
 Field kinds: `int`, `number` (int or float), `str`, `bool`, `cell` ([x, y] grid indices, ints >= 0),
-`cells` (a list of cells), `xy` ([x, y] ints of any sign: a cell that may lie off the grid), `latlon`
+`cells` (a list of cells), `number rows` (a list of lists of numbers: a grid-sized array, x-major),
+`xy` ([x, y] ints of any sign: a cell that may lie off the grid), `latlon`
 ([lat, lon] degrees), `latlons` (a list of them), `ints`, `numbers`, `strs`, and `records NAME` (a
 list of objects following the record schema NAME below).
 """
@@ -113,9 +114,9 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
                 "finish",
                 "str",
                 "-",
-                "the mission's finish line (`[mission] finish`)",
+                "the mission's finish line (`[mission] finish`; pos: `pos >= X`, X in the summary's `pos_goal`)",
                 required=False,
-                values=("held", "found", "covered"),
+                values=("held", "found", "covered", "pos"),
             ),
             Field(
                 "expected_targets",
@@ -208,16 +209,34 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
                 "str",
                 "-",
                 "override: why (`pilot`: a pilot's mode; `not commanded`: off course for more than "
-                "`[flight] off_course_rounds` rounds)",
+                "`[flight] off_course_rounds` rounds); low battery: `floor` (below `[battery] return_below`) or "
+                "`energy` (below what its return takes plus `[battery] reserve`)",
                 required=False,
-                values=("pilot", "not commanded"),
+                values=("pilot", "not commanded", "floor", "energy"),
             ),
             Field("off_m", "number", "m", "off course: metres from the path of its last step", required=False),
             Field("below_m", "number", "m", "off course: metres below the mission altitude", required=False),
             Field("rounds", "int", "rounds", "off course: rounds in a row off course", required=False),
-            Field("battery", "int", "%", "low battery: the charge left", required=False),
+            Field(
+                "battery",
+                "int",
+                "%",
+                "low battery: the charge left; rejoin after a battery swap: the new one",
+                required=False,
+            ),
+            Field("distance_m", "number", "m", "low battery: its distance from home", required=False),
+            Field("rate", "number", "%/s", "low battery: its consumption, measured (or the prior)", required=False),
+            Field("seconds_home", "number", "s", "low battery: how long its return takes", required=False),
+            Field("needed", "number", "%", "low battery: the charge its return takes plus the reserve", required=False),
+            Field("relaunch", "bool", "-", "rejoin: true when it takes off again on a fresh battery", required=False),
             Field("error", "str", "-", "failed: why", required=False),
-            Field("rejoined", "bool", "-", "search: true when the vehicle came back after a link loss", required=False),
+            Field(
+                "rejoined",
+                "bool",
+                "-",
+                "search: true when the vehicle came back after a link loss or a battery swap",
+                required=False,
+            ),
             Field(
                 "end_state", "str", "-", "ended: how it ended (landed at home, hovering on target ...)", required=False
             ),
@@ -343,6 +362,29 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
             Field("vehicles", "records step vehicle", "-", "the vehicles that searched this round"),
             Field("others", "records step other", "-", "the other vehicles of this process"),
             Field("decide_ms", "number", "ms", "time the policy took for the round (every vehicle at once)"),
+            Field(
+                "pos",
+                "number",
+                "-",
+                "the search's probability of success after the round, 4 decimals (swarmctl.mission.probability; "
+                "left out by recorders before it)",
+                required=False,
+            ),
+        ),
+    ),
+    "prior": (
+        "events.jsonl",
+        "where the person is likely to be, written once at the start of the search: what the step records' "
+        "`pos` and the summary's `pos` are computed against (swarmctl.mission.probability)",
+        (
+            Field("pod", "number", "-", "the detector's probability of detection in one pass (`[sensing] pod`)"),
+            Field(
+                "weights",
+                "number rows",
+                "-",
+                "the prior, normalised over the free cells: W lists of H numbers (x-major), 8 decimals",
+            ),
+            Field("source", "str", "-", "the `[mission] prior` file's name, or `uniform`"),
         ),
     ),
     "end": (
@@ -511,6 +553,7 @@ _CHECKS = {
     "latlons": lambda v: isinstance(v, list) and all(_is_latlon(c) for c in v),
     "ints": lambda v: isinstance(v, list) and all(_is_int(c) for c in v),
     "numbers": lambda v: isinstance(v, list) and all(_is_number(c) for c in v),
+    "number rows": lambda v: isinstance(v, list) and all(isinstance(r, list) and all(map(_is_number, r)) for r in v),
     "strs": lambda v: isinstance(v, list) and all(isinstance(c, str) for c in v),
 }
 

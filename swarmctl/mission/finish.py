@@ -6,6 +6,8 @@ expected_targets and on_find say (docs/mission.md, "The finish line"), and the f
   (swarmctl.mission.rounds.Rounds.ended: "complete", or "partial" when vehicles dropped out).
 - `found`: complete when N targets are found: known to the swarm, in the union of the agents'
   knowledge of target cells. N left out (unknown): complete when the area is covered.
+- `pos >= X`: complete when the search's probability of success (POS, swarmctl.mission.probability:
+  against the mission's prior, uniform without one, with `[sensing] pod`) reaches X.
 - `covered`: complete when every reachable cell is explored in the union of the agents' knowledge.
   Reachable: the free cells of the grid (not blocked: what the safety guard lets a vehicle enter)
   4-connected to a cell a vehicle of the mission held (its launch cell, and any cell it flew to or
@@ -36,6 +38,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from swarmctl.knowledge.model import stacked_field
 from swarmctl.knowledge.stack import NEVER
 from swarmctl.mission.agent import State
+from swarmctl.mission.probability import POS_DECIMALS, SearchProbability
+from swarmctl.mission.spec import pos_goal
 
 if TYPE_CHECKING:
     from swarmctl.mavlink.gcs import GcsForwarder
@@ -95,6 +99,9 @@ def describe(spec: MissionSpec) -> str:
         what = f"complete when {count} distinct target{'s are' if count != 1 else ' is'} hovered on by live vehicles"
     elif m.finish == "found" and n is not None:
         what = f"complete when {n} target{'s are' if n != 1 else ' is'} found"
+    elif (goal := pos_goal(m.finish)) is not None:
+        source = "a uniform prior" if m.prior is None else f"the prior {m.prior.name}"
+        what = f"complete when the probability of success reaches {goal:g} ({source}, pod {spec.sensing.pod:g})"
     else:
         what = "complete when every cell the vehicles can reach is explored"
         if m.finish == "found":
@@ -121,7 +128,11 @@ class FinishLine:
         gcs: GcsForwarder | None = None,
     ):
         m = plan.spec.mission
-        self.rule: str = m.finish
+        self.goal: float | None = pos_goal(m.finish)  # finish = "pos >= X": X
+        self.rule: str = "pos" if self.goal is not None else m.finish
+        # POS against the plan's prior (uniform without one) with the detector's pod, whatever the rule
+        source = m.prior.name if m.prior is not None else "uniform"
+        self.probability = SearchProbability(plan.prior, ~plan.grid.blocked, plan.spec.sensing.pod, plan.fov, source)
         self.on_find: str = m.on_find
         self.confirm: bool = m.confirm_finds  # held and found count the finds the operator confirmed
         self.given: int | None = m.expected_targets
@@ -204,6 +215,23 @@ class FinishLine:
         total = int(np.count_nonzero(self.reachable))
         return int(np.count_nonzero(self.explored() & self.reachable)), total
 
+    def pos(self) -> float:
+        """The search's probability of success now (onboard, with the cells the agents know other processes'
+        vehicles explored counted as one pass)."""
+        if self.crew.onboard:
+            self.probability.note_explored(self.explored())
+        return self.probability.pos()
+
+    def standing(self) -> str:
+        """How the search stands, in a line: POS (and its goal), the probability left, the coverage."""
+        pos = self.pos()
+        goal = f" (goal {self.goal:g})" if self.goal is not None else ""
+        return f"POS {pos:.3f}{goal}  probability left {1.0 - pos:.3f}  coverage {100 * self.covered_fraction():.1f} %"
+
+    def recorded_pos(self) -> float:
+        """POS as the step records and the summary keep it (4 decimals)."""
+        return round(self.pos(), POS_DECIMALS)
+
     def covered_fraction(self) -> float:
         done, total = self.coverage()
         return round(done / total, 4) if total else 0.0
@@ -257,6 +285,8 @@ class FinishLine:
         Rounds.ended's)."""
         if self.rule == "held":
             return self.counted(self.crew.held_targets()) >= (self.expected or 0)
+        if self.goal is not None:
+            return self.pos() >= self.goal
         if self.rule == "found" and self.expected is not None:
             return self.counted(self.known_targets()) >= self.expected
         done, total = self.coverage()
@@ -274,11 +304,16 @@ class FinishLine:
         met = self.met
         if met is None:  # still running: as it stands now
             met = outcome == "complete" if self.classic else self.is_met()
-        return dict(
+        out = dict(
             finish=dict(rule=self.rule, expected_targets=self.expected, on_find=self.on_find, met=bool(met)),
             finds=[f.record() for f in sorted(self.finds.values(), key=lambda f: (f.time_s, f.step, f.cell))],
             covered_fraction=self.covered_fraction(),
+            pos=self.recorded_pos(),
+            passes=self.probability.team_passes().tolist(),
         )
+        if self.goal is not None:
+            out["pos_goal"] = self.goal
+        return out
 
     def close(self, outcome: str | None) -> None:
         """At the end of the search (before the end actions): whether the line was met then."""

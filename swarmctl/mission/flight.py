@@ -243,11 +243,12 @@ class Flight:
 
     def _arrived(self, a: Agent, moved: bool) -> bool:
         """Whether the agent senses at its cell this round (it moved there and is not off course); notes
-        the visit."""
+        the visit and its pass."""
         if moved and self.watch.off_course(a, a.here):
             moved = False  # steered away before it got there: nothing sensed there (swarmctl.mission.watch)
         if moved:
             a.visited[a.here] = self.state.step
+            self.finish.probability.look(a.here, a.name)  # passes (swarmctl.mission.probability)
         return moved
 
     async def _wait_reports(self, a: Agent, since: float) -> list:

@@ -232,8 +232,9 @@ class Launch:
         return a.vehicle.position
 
     async def rejoin(self, a: Agent) -> None:
-        """A vehicle back after a link loss: take it back from its failsafe in the air (or take off again
-        from the ground, after its fence), fly to the nearest free cell, and search again."""
+        """A vehicle back after a link loss, or home on low battery with a fresh one (Agent.fresh_battery):
+        take it back from its failsafe in the air (or take off again from the ground, after its fence), fly
+        to the nearest free cell, and search again."""
         timing = self.plan.spec.timing
         try:
             # what the vehicle reported before its link went is stale: decide on a report from after it

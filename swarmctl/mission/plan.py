@@ -9,6 +9,10 @@
   least that tall) or with a cell size other than the grid's, and a footprint more than 0.25 cell
   from the fov the policy was trained with, and more expected targets than the grid has free cells;
 - builds the policy once (loading its checkpoint): the plan keeps the object, the controller uses it;
+  a search pattern (`pattern:NAME` with `lkp`) is planned here on the grid (swarmctl.geo.patterns) and
+  its routes turned into routes of cells, the i-th vehicle of the file taking route i
+  (`pattern_routes`);
+- reads the `[mission] prior` file onto the grid (swarmctl.geo.prior), once;
 - refuses an onboard plan (some vehicles only: `swarmctl agent`) without a `[knowledge] channel`: its
   agents share knowledge with the other processes' agents only through it.
 
@@ -18,17 +22,23 @@ The plan's spec is the resolved one: every value the controller reads is in it, 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from swarmctl.errors import InputError
 from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
 from swarmctl.knowledge.codec import MAX_CELLS, MAX_SIDE
 from swarmctl.mavlink.codec import Endpoint
 from swarmctl.mission.spec import PUSH_UP_TO, MissionSpec, MissionTable, parse_detector
+from swarmctl.world.scenario import fov_offsets
 
 if TYPE_CHECKING:  # pragma: no cover
+    import numpy as np
+
     from swarmctl.geo.grid import GeoGrid
     from swarmctl.mission.decide import FieldPolicy
     from swarmctl.world.channel import Channel
@@ -53,6 +63,7 @@ class MissionPlan:
     seed: int = 0
     mission_file: Path | None = None
     bus_channel: Channel | None = None  # the channel model of the ground mode's bus; None: ideal
+    prior: np.ndarray | None = None  # (W, H) the [mission] prior on the grid, summing to 1; None: uniform
 
     @property
     def onboard(self) -> bool:
@@ -98,6 +109,8 @@ def make_plan(
     if policy is None:
         policy = make_policy(m.policy, seed, where)
     footprint = _check_footprint(m.footprint_m, cell, policy, where)
+    if m.lkp is not None:  # a search pattern's (the spec takes lkp with a pattern:NAME policy only)
+        policy.set_routes(pattern_routes(m, grid, len(spec.vehicles), footprint / cell, where))
     _check_expected(m, grid, where)
     push = spec.knowledge.push if spec.knowledge.push is not None else len(spec.vehicles) <= PUSH_UP_TO
     resolved = spec.model_copy(
@@ -129,8 +142,21 @@ def make_plan(
         key_field = f"{where}: mission.signing_key"
         read_limited(m.signing_key, "signing key file", KEY_MAX_BYTES, key_field)  # before it is read whole
         key = load_signing_key(m.signing_key, field=key_field)
+    prior = None
+    if m.prior is not None:
+        from swarmctl.geo.prior import load_prior
+
+        prior = load_prior(m.prior, grid)
     return MissionPlan(
-        resolved, grid, policy, key, detectors, keep if only else None, seed=seed, mission_file=mission_file
+        resolved,
+        grid,
+        policy,
+        key,
+        detectors,
+        keep if only else None,
+        seed=seed,
+        mission_file=mission_file,
+        prior=prior,
     )
 
 
@@ -228,3 +254,82 @@ def _check_footprint(footprint: float | None, cell: float, policy: FieldPolicy, 
             f"(or leave it out), or fly a policy trained with a fov of {footprint / cell:.2f} cells"
         )
     return footprint
+
+
+def pattern_routes(m: MissionTable, grid: GeoGrid, vehicles: int, fov: float, where: str) -> list[np.ndarray]:
+    """The routes of cells of the mission's search pattern (policy pattern:NAME from lkp), one per vehicle
+    in the file's order: the pattern's routes (swarmctl.geo.patterns.plan_pattern, track spacing
+    spacing_m or the footprint's diameter) as the free cells their legs cross, then every free cell of
+    the pattern's region that no route cell's footprint (radius `fov` cells) covers added to the route
+    passing nearest it."""
+    from swarmctl.geo.patterns import plan_pattern
+
+    assert m.lkp is not None, "the spec refuses a pattern without lkp"
+    lat, lon = m.lkp
+    x, y = grid.latlon_to_cell(lat, lon)
+    if not grid.in_grid(x, y):
+        raise InputError(
+            f"{where}: mission.lkp = [{lat:g}, {lon:g}] lies outside the grid; give LAT, LON of a point in the "
+            "searched area"
+        )
+    pattern = m.policy.partition(":")[2].split(":")[0]
+    spacing = m.spacing_m if m.spacing_m is not None else 2.0 * fov * grid.cell
+    try:
+        planned = plan_pattern(grid, pattern, (lat, lon), vehicles, spacing)
+    except InputError as exc:  # its words are the command line's: say them in the mission file's
+        why = re.sub(r"--uavs (\d+)", r"the \1 vehicle(s) listed", str(exc))
+        why = why.replace("--lkp", "lkp").replace("a larger --spacing", "a larger spacing_m")
+        raise InputError(f"{where}: mission.policy = {m.policy!r}: {why}") from None
+    routes = [route_cells(grid, r.local) for r in planned.routes]
+    cover(routes, planned.cells, grid.blocked, fov)
+    return routes
+
+
+def route_cells(grid: GeoGrid, local: list[tuple[float, float]]) -> np.ndarray:
+    """(L, 2): the free cells a route crosses, in order (points along each leg every quarter cell, in the
+    grid's frame in metres); blocked cells and cells off the grid are left out (a way round them is the
+    policy's to find)."""
+    xy = np.asarray(local, dtype=float).reshape(-1, 2)
+    points = [xy[:1]]
+    for a, b in zip(xy[:-1], xy[1:]):
+        n = max(2, int(math.ceil(4.0 * float(np.hypot(*(b - a))) / grid.cell)) + 1)
+        points.append(a + np.linspace(0.0, 1.0, n)[1:, None] * (b - a))
+    cells = np.floor(np.concatenate(points) / grid.cell).astype(np.int64)
+    keep = grid.in_grid(cells[:, 0], cells[:, 1])
+    cells = cells[keep]
+    cells = cells[~grid.blocked[cells[:, 0], cells[:, 1]]]
+    if len(cells) == 0:
+        return cells.reshape(0, 2)
+    new = np.ones(len(cells), dtype=bool)
+    new[1:] = (cells[1:] != cells[:-1]).any(1)
+    result: np.ndarray = cells[new]
+    return result
+
+
+def cover(routes: list[np.ndarray], cells: np.ndarray, blocked: np.ndarray, fov: float) -> None:
+    """Add to `routes` (in place) each of `cells` that no route cell's footprint covers: after the
+    nearest cell of the nearest route, until every one is covered."""
+    offsets = fov_offsets(fov)
+    w, h = blocked.shape
+    seen = np.zeros((w, h), dtype=bool)
+
+    def sense(at: np.ndarray) -> None:
+        around = (at[:, None, :] + offsets[None]).reshape(-1, 2)
+        inside = (around[:, 0] >= 0) & (around[:, 0] < w) & (around[:, 1] >= 0) & (around[:, 1] < h)
+        seen[around[inside, 0], around[inside, 1]] = True
+
+    for r in routes:
+        sense(r)
+    for cx, cy in np.asarray(cells, dtype=np.int64).reshape(-1, 2).tolist():
+        if seen[cx, cy] or blocked[cx, cy]:
+            continue
+        best = None
+        for k, r in enumerate(routes):
+            if len(r):
+                d = np.hypot(r[:, 0] - cx, r[:, 1] - cy)
+                i = int(np.argmin(d))
+                if best is None or d[i] < best[0]:
+                    best = (float(d[i]), k, i + 1)
+        k, i = (best[1], best[2]) if best is not None else (0, 0)
+        routes[k] = np.insert(routes[k], i, [cx, cy], axis=0)
+        sense(np.array([[cx, cy]]))

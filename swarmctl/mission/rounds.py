@@ -2,7 +2,8 @@
 
 Each round, for the agents of this process that are searching:
 1. merge what arrived on the knowledge channel, track the distance flown;
-2. state updates: each agent's own transitions (link, pilot, battery: Agent.next_state), and an
+2. state updates: each agent's own transitions (link, pilot, battery: Agent.next_state; home on the
+   energy its return takes, swarmctl.mission.energy; back with a fresh battery), and an
    agent on a known target cell that no other vehicle hovers over starts hovering there when the
    hover rule lets it park (FieldPolicy.parks: by default once the swarm knows as many targets as it
    has vehicles); then every
@@ -40,6 +41,7 @@ from swarmctl.knowledge.stepping import poll_all
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.decide import without_targets
 from swarmctl.mission.state import quietly
+from swarmctl.policy.hover import NO
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 if TYPE_CHECKING:
@@ -130,7 +132,9 @@ class Rounds:
         if self.state.stopping:
             return "interrupted"
         live = [a for a in self.crew.agents if a.live]
-        if not live and not any(a.state is State.LOST for a in self.crew.agents):
+        # a lost vehicle may come back, and with `[battery] relaunch` one home on low battery too
+        coming = (State.LOST, State.LOW_BATTERY) if self.battery.relaunch else (State.LOST,)
+        if not live and not any(a.state in coming for a in self.crew.agents):
             return "failed"
         if not self.finish.classic:  # the mission file's finish line (swarmctl.mission.finish)
             outcome = self.finish.check()
@@ -162,8 +166,10 @@ class Rounds:
 
     def update_states(self) -> None:
         """Each agent's own transitions, with their side effects, then the hover rule."""
+        battery = self.battery
+        relaunch_at = battery.takeoff_min if battery.relaunch else None
         for a in self.crew.agents:
-            change = a.next_state(self.battery.return_below)
+            change = a.next_state(battery.return_below, reserve=battery.reserve, relaunch_at=relaunch_at)
             if change is not None:
                 state, extra = change
                 if state is State.LOST and a.rejoin_task is not None:
@@ -171,6 +177,7 @@ class Rounds:
                     a.rejoin_task = None
                 self.crew.enter(a, state, **extra)
                 if state is State.REJOIN:
+                    a.end_action = None  # back from low battery: its end action is the mission's again
                     a.rejoin_task = self.state.spawn(self.launch.rejoin(a), f"rejoin {a.name}")
                 elif state is State.OVERRIDE:
                     a.cell = None  # the pilot took over: stop commanding it
@@ -200,6 +207,29 @@ class Rounds:
                 if a.cell not in hovering:
                     self.crew.enter(a, State.HOVER)
                     a.exchange.step(self.state.step, a.cell, True)  # tell the others this target is taken
+        if self.policy.hover == NO and self.finish.classic and not self.finish.marks:
+            self.hold_once_all_on_targets()
+
+    def hold_once_all_on_targets(self) -> None:
+        """Under the hover rule `no` nobody parks on the way: staying on a target is the policy's own
+        choice, as for the networks trained under that rule. The search is held, as the simulator's
+        `held` finish says, once every live vehicle sits on a known target of its own (and, onboard, every
+        other process's vehicle is last known on one): then each holds its target (HOVER)."""
+        live = [a for a in self.crew.agents if a.live]
+        cells = [a.cell for a in live]
+        if not live or any(a.state is State.REJOIN or a.cell is None for a in live) or len(set(cells)) < len(cells):
+            return
+        rejected = self.state.rejected
+        if any(a.cell not in a.knowledge.targets or a.cell in rejected for a in live):
+            return
+        known = set().union(*(a.knowledge.targets.keys() for a in live))
+        others = [p.cell if p is not None else None for p in self.crew.newest_of_others().values()]
+        if any(c is None or c in cells or c not in known for c in others) or len(set(others)) < len(others):
+            return
+        for a in live:
+            if a.state is State.SEARCH and a.cell is not None:
+                self.crew.enter(a, State.HOVER)
+                a.exchange.step(self.state.step, a.cell, True)  # tell the others this target is taken
 
     async def decision_round(self) -> bool:
         """One decision round; True when some vehicle moved."""
@@ -285,6 +315,7 @@ class Rounds:
             vehicles=records,
             others=others,
             decide_ms=round(self.state.times.decide[-1] * 1000, 3),
+            pos=self.finish.recorded_pos(),  # the search's probability of success (swarmctl.mission.probability)
         )
         self.rec.knowledge(self.state.step, [(a.name, a.knowledge) for a in self.crew.agents])
         return bool(moves)

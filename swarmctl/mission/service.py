@@ -59,6 +59,7 @@ def describe(plan: MissionPlan) -> list[str]:
         f"altitude {m.altitude:g} m above home{above}",
         f"end action {m.end_action}, time limit {spec.timing.time_limit:g} s",
         finish.describe(spec),
+        search_text(plan),
         f"sensor footprint {m.footprint_m:g} m round each cell reached ({plan.fov:g} cells)",
         "fence: the area's boundary, uploaded to every vehicle before take-off"
         if m.fence
@@ -72,6 +73,18 @@ def describe(plan: MissionPlan) -> list[str]:
         detector = sharing.detector_text(plan.detectors.get(i))
         lines.append(f"  vehicle {v.name}: sysid {v.sysid}, {autopilot}, {v.connection}, {detector}")
     return lines
+
+
+def search_text(plan: MissionPlan) -> str:
+    """How the search is scored and whether the policy weighs cells by the prior, in a line."""
+    m = plan.spec.mission
+    source = f"the prior {m.prior.name}" if m.prior is not None else "a uniform prior"
+    how = (
+        "the policy weighs each cell by the probability left on it"
+        if plan.policy.uses_prior
+        else "ddql policies ignore the prior (their network was trained on the unexplored map)"
+    )
+    return f"search probability: POS against {source}, detector pod {plan.spec.sensing.pod:g}; {how}"
 
 
 class LiveView:
@@ -88,6 +101,7 @@ class LiveView:
         self._last = 0.0
         self._notes: dict[str, str | None] = {}  # vehicle -> the preflight note last printed
         self._alarms: dict[str, str | None] = {}  # vehicle -> the alarm last printed
+        self.standing: Callable[[], str] | None = None  # how the search stands (FinishLine.standing)
 
     def __call__(self, state: MissionState, crew: Crew) -> None:
         agents = crew.agents
@@ -103,6 +117,7 @@ class LiveView:
         progress = f"step {state.step}  targets found {found}  hovering {hovering}/{len(agents)}  {elapsed:.1f} s" + (
             f"  -> {state.outcome}" if state.outcome else "  PAUSED (live page)" if state.held else ""
         )
+        standing = self.standing() if self.standing is not None and state.search_started else None
         if not self.live:
             for a in agents:
                 if a.status is not None and self._notes.get(a.name) != a.status:
@@ -114,7 +129,7 @@ class LiveView:
                         print(f"{a.name}: ALARM {a.alarm}", file=self.stream, flush=True)
             if state.search_started and now - self._last >= self.every or state.outcome:
                 self._last = now
-                print(progress, file=self.stream, flush=True)
+                print(progress + (f"  {standing}" if standing else ""), file=self.stream, flush=True)
             return
         rows = [f"{'vehicle':<10} {'state':<12} {'cell':<9} {'battery':>7} {'link':<5} {'targets':>7}"]
         for a in agents:
@@ -127,6 +142,8 @@ class LiveView:
                 f"{a.link_text():<5} {a.targets_known:>7}{says}"
             )
         rows.append(progress)
+        if standing:
+            rows.append(standing)
         out = (f"\x1b[{self._lines}F\x1b[J" if self._lines else "") + "\n".join(rows) + "\n"
         self.stream.write(out)
         self.stream.flush()
@@ -203,6 +220,8 @@ def run_controller(
         rec.close()
         raise
     controller = Controller(plan, rec, view=view)
+    if view is not None:
+        view.standing = controller.finish.standing
 
     async def main() -> str:
         loop = asyncio.get_running_loop()

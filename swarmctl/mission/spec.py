@@ -56,7 +56,7 @@ from swarmctl.geo.defaults import DEFAULT_ALTITUDE, DEFAULT_CELL
 from swarmctl.mavlink.autopilots import AutopilotName
 from swarmctl.mavlink.codec import Endpoint, parse_connection
 from swarmctl.mission.spec_text import SpecError, bounds, explain, markdown_table, replace_between, table_of_key
-from swarmctl.world.config import Finish  # when the search is complete (swarmctl.mission.finish)
+from swarmctl.world.config import FINISHES  # when the search is complete (swarmctl.mission.finish)
 
 MAX_BYTES = 1_000_000  # a mission file is a few kB; anything this large is not one
 EndAction = Literal["land", "rtl", "hover"]
@@ -170,6 +170,35 @@ def _detector(value: Any) -> Endpoint | str:
 
 Detector = Annotated[Endpoint | str, PlainValidator(_detector), PlainSerializer(str, when_used="json")]
 
+# `finish = "pos >= X"`: complete once the search's probability of success reaches X (swarmctl.mission.probability)
+POS_FINISH = re.compile(r"^pos\s*>=\s*(\d+(?:\.\d*)?|\.\d+)$")
+FINISH_FORMS = "held, found, covered or pos >= X (0 < X <= 1)"
+
+
+def pos_goal(finish: str) -> float | None:
+    """The probability of success a `pos >= X` finish line asks for; None for held, found and covered."""
+    match = POS_FINISH.match(finish.strip())
+    return float(match.group(1)) if match else None
+
+
+def _finish(value: object) -> str:
+    """held, found, covered, or "pos >= X" (written back as `pos >= X` with X as %g)."""
+    if isinstance(value, str):
+        text = value.strip()
+        if text in FINISHES:
+            return text
+        goal = pos_goal(text)
+        if goal is not None and 0.0 < goal <= 1.0:
+            return f"pos >= {goal:g}"
+    raise SpecError(
+        "must be one of held, found, covered",
+        'write for example finish = "covered", or finish = "pos >= X" with 0 < X <= 1 (e.g. "pos >= 0.9")',
+        example="pos >= 0.9",
+    )
+
+
+MissionFinish = Annotated[str, PlainValidator(_finish)]
+
 
 def parse_option(kind: Any, text: str, option: str) -> Any:
     """A command-line value parsed as the spec parses keys of this type (GroundStation,
@@ -281,9 +310,28 @@ class MissionTable(Table):
     )
     policy: str = setting(
         ...,
-        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower or random (PATH: from the mission file)",
+        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random (PATH: from the mission file), "
+        "or a search pattern from lkp: pattern:expanding-square, pattern:sector or pattern:parallel",
         min_length=1,
         example="frontier",
+    )
+    lkp: list[float] | None = setting(
+        None,
+        "the last known point [LAT, LON] (degrees) a pattern:NAME policy searches from; inside the grid",
+        min_length=2,
+        max_length=2,
+        span="[LAT, LON]",
+        example=[41.8819, -87.6278],
+        default_text="none (needed by pattern:NAME)",
+    )
+    spacing_m: float | None = setting(
+        None,
+        "a pattern's track spacing (with lkp)",
+        ge=1.0,
+        le=100_000.0,
+        unit="metres",
+        example=60.0,
+        default_text="the footprint's diameter, 2 x footprint_m",
     )
     end_action: EndAction = setting(
         "rtl", "at the end: land, rtl, or hover (vehicles on a target hold, the others come home)"
@@ -308,11 +356,22 @@ class MissionTable(Table):
         "defaults), with a warning; false: preflight reads it and refuses such a vehicle before anything takes "
         "off, as then nothing brings it home if swarmctl stops",
     )
-    finish: Finish = setting(
+    finish: MissionFinish = setting(
         "held",
         "when the search is complete: held (expected_targets distinct targets hovered on by live vehicles), "
-        "found (expected_targets targets known to the swarm; unknown: the area covered) or covered (every "
-        "cell the vehicles can reach explored)",
+        "found (expected_targets targets known to the swarm; unknown: the area covered), covered (every "
+        'cell the vehicles can reach explored) or "pos >= X" (the probability of success against the prior, '
+        "with [sensing] pod, reaches X: 0 < X <= 1, 1 only with pod 1)",
+        span=FINISH_FORMS,
+        example="pos >= 0.9",
+    )
+    prior: FilePath | None = setting(
+        None,
+        "where the missing person is likely to be: a GeoJSON FeatureCollection of polygons, each with its "
+        "`probability` (the rest spread evenly over the free cells in none) or all with a `weight` (per unit "
+        "area), or an .npz with an array `prior` of the grid's shape (swarmctl.geo.prior)",
+        example="prior.geojson",
+        default_text="none: every free cell equally likely",
     )
     expected_targets: int | None = setting(
         None,
@@ -350,6 +409,45 @@ class MissionTable(Table):
                 f"names the model {model!r}, which does not exist", "fix the path (relative to the mission file)"
             )
         return f"{kind}:{path}{options}"
+
+    @field_validator("lkp")
+    @classmethod
+    def _lat_lon(cls, value: list[float] | None) -> list[float] | None:
+        if value is not None and not (-90.0 <= value[0] <= 90.0 and -180.0 <= value[1] <= 180.0):
+            raise SpecError(
+                "is not [LAT, LON] in degrees (latitude -90..90, longitude -180..180)",
+                "write for example lkp = [41.8819, -87.6278]",
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _pattern_and_lkp(self) -> MissionTable:
+        from swarmctl.policy.routes import ROUTE_PATTERNS, ROUTE_PREFIX
+
+        kind, _, rest = self.policy.partition(":")
+        if kind == ROUTE_PREFIX:
+            name = rest.split(":")[0]
+            if name not in ROUTE_PATTERNS:
+                forms = ", ".join(f'"{ROUTE_PREFIX}:{p}"' for p in ROUTE_PATTERNS)
+                raise SpecError("is not a search pattern", f"write policy = one of {forms}", ("policy",), self.policy)
+            if self.lkp is None:
+                raise SpecError(
+                    "searches from a last known point, and lkp is missing",
+                    "add lkp = [LAT, LON] (degrees, inside the grid) to [mission]",
+                    ("policy",),
+                    self.policy,
+                )
+        else:
+            for key in ("lkp", "spacing_m"):
+                if getattr(self, key) is not None:
+                    raise SpecError(
+                        f"is for a search pattern, and policy = {self.policy!r} is none",
+                        f'write policy = "{ROUTE_PREFIX}:parallel" (or {", ".join(ROUTE_PATTERNS[:-1])}), '
+                        f"or leave {key} out",
+                        (key,),
+                        getattr(self, key),
+                    )
+        return self
 
     @model_validator(mode="after")
     def _grid_or_area(self) -> MissionTable:
@@ -462,7 +560,24 @@ class BatteryTable(Table):
     """[battery]: charge thresholds, in % of a full battery as the vehicle reports it."""
 
     takeoff_min: int = setting(30, "charge a vehicle needs in preflight to start", ge=0, le=100, unit="%")
-    return_below: int = setting(15, "charge below which a searching vehicle is sent home (RTL)", ge=0, le=100, unit="%")
+    return_below: int = setting(
+        15, "charge below which a searching vehicle is sent home (RTL) whatever its distance", ge=0, le=100, unit="%"
+    )
+    reserve: int = setting(
+        15,
+        "charge a vehicle must still have when it lands at home: it is sent home once its charge is below this "
+        "plus what its return takes at its measured consumption",
+        ge=0,
+        le=100,
+        unit="%",
+    )
+    relaunch: bool = setting(
+        True,
+        "a vehicle sent home on low battery that reports at least takeoff_min again, landed and disarmed (a "
+        "fresh battery), takes off and rejoins the search; a vehicle the pilot took over or the operator sent "
+        "home stays down either way",
+        example=False,
+    )
 
     @model_validator(mode="after")
     def _ordered(self) -> BatteryTable:
@@ -497,8 +612,48 @@ class KnowledgeTable(Table):
     )
 
 
+class SensingTable(Table):
+    """[sensing]: how well the detector sees."""
+
+    pod: float = setting(
+        1.0,
+        "probability of detection: the chance a target is seen in one pass (its entry into a vehicle's "
+        "footprint); below 1 a cell seen once may still hold the target, which the "
+        "search's POS and the planner's density count (held, found and covered count a cell seen once)",
+        ge=0.0,
+        le=1.0,
+        example=0.8,
+    )
+
+    @field_validator("pod")
+    @classmethod
+    def _positive(cls, value: float) -> float:
+        if value <= 0.0:
+            raise SpecError("must be above 0 (a detector that never sees)", "give pod in (0, 1], e.g. pod = 0.8")
+        return value
+
+
+CONNECTION_PLACEHOLDER = "FILL IN"  # the connection `swarmctl plan` writes into a mission file, to be replaced
+
+
 class VehicleSpec(Table):
     """[[vehicles]]: one vehicle of the swarm; its index in the list is its index in the mission."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _filled_in(cls, data: object) -> object:
+        """A connection still the placeholder `swarmctl plan` wrote: say which vehicle's to fill in."""
+        if isinstance(data, dict) and data.get("connection") == CONNECTION_PLACEHOLDER:
+            name = data.get("name")
+            which = f"vehicle {name!r}" if isinstance(name, str) else "this vehicle"
+            raise SpecError(
+                f"is the placeholder `swarmctl plan` wrote: fill in the connection of {which}",
+                'write its MAVLink link, e.g. connection = "udpin:0.0.0.0:14551" (udpin, udpout, tcp HOST:PORT or '
+                "a serial DEVICE:BAUD)",
+                ("connection",),
+                CONNECTION_PLACEHOLDER,
+            )
+        return data
 
     name: str = setting(..., "the vehicle's name", pattern=NAME_PATTERN, span=NAME_SPAN, example="alpha")
     connection: VehicleLink = setting(
@@ -538,6 +693,7 @@ class MissionSpec(Table):
     flight: FlightTable = Field(default_factory=FlightTable, description="flight")
     battery: BatteryTable = Field(default_factory=BatteryTable, description="battery")
     knowledge: KnowledgeTable = Field(default_factory=KnowledgeTable, description="knowledge sharing")
+    sensing: SensingTable = Field(default_factory=SensingTable, description="sensing")
     vehicles: list[VehicleSpec] = setting(
         ..., "one [[vehicles]] table per vehicle (name, connection, sysid)", min_length=1, max_length=250
     )
@@ -558,6 +714,13 @@ class MissionSpec(Table):
                         v.sysid,
                     )
         m = self.mission
+        if pos_goal(m.finish) == 1.0 and self.sensing.pod < 1.0:
+            raise SpecError(
+                f"can never be reached with [sensing] pod = {self.sensing.pod:g} (a cell is never certainly clear)",
+                'write a goal below 1, e.g. finish = "pos >= 0.95", or pod = 1.0',
+                ("mission", "finish"),
+                m.finish,
+            )
         if m.finish == "held" and m.expected_targets is not None and m.expected_targets > len(self.vehicles):
             raise SpecError(
                 f"is more than the {len(self.vehicles)} vehicle(s) listed, and a vehicle holds one target",
@@ -593,6 +756,7 @@ TABLES: dict[str, type[Table]] = {
     "flight": FlightTable,
     "battery": BatteryTable,
     "knowledge": KnowledgeTable,
+    "sensing": SensingTable,
     "vehicles": VehicleSpec,
 }
 SETTING_TABLES = tuple(t for t in TABLES if t != "vehicles")

@@ -164,6 +164,8 @@ def _kind(info: FieldInfo) -> str:
     if _choices(info):
         return "choice"
     names = {float: "number", int: "integer", bool: "true/false", str: "string", Path: "file path"}
+    if typing.get_origin(t) is list:
+        return "array"
     return names.get(t, "connection" if t is Endpoint or Endpoint in typing.get_args(t) else "table")
 
 
@@ -184,6 +186,9 @@ def _rule(info: FieldInfo) -> str:
         return "must be true or false"
     if kind == "choice":
         return f"must be one of {', '.join(_choices(info) or ())}"
+    if kind == "array":
+        span = _extra(info).get("span")
+        return f"must be an array of numbers{f', {span}' if span else ''}"
     if info.metadata and any(hasattr(m, "pattern") for m in info.metadata):
         return "must be a name of letters, digits, '.', '_' or '-' (at most 64, starting with a letter or digit)"
     return "must be a non-empty string"

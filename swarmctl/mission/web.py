@@ -349,6 +349,8 @@ class LiveSite:
             explored_count=int(np.count_nonzero(shown)),
             covered=[int(np.count_nonzero(union & reachable)), int(np.count_nonzero(reachable))],
             finds=finds,
+            pos=self.finish.recorded_pos(),  # the search's probability of success (swarmctl.mission.probability)
+            pos_goal=self.finish.goal,
         )
 
     # --- the operator's orders -------------------------------------------------------------------------

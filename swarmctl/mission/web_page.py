@@ -320,7 +320,9 @@ LIVE_JS = r"""// The live page: the mission's fixed parts once (live/setup), its
     text("progress", s.covered[0] + " of " + s.covered[1] + " cells covered; " + found +
          " target" + (found === 1 ? "" : "s") + " found" +
          (setup.expected === null ? "" : " of " + setup.expected) + "; " + s.explored_count + " cells explored" +
-         (selected >= 0 ? " by " + setup.vehicles[selected] : ""));
+         (selected >= 0 ? " by " + setup.vehicles[selected] : "") +
+         (s.pos === undefined ? "" : "; POS " + s.pos.toFixed(3) + (s.pos_goal ? " of " + s.pos_goal : "") +
+          ", probability left " + (1 - s.pos).toFixed(3)));
     const tb = document.querySelector("#targets tbody");
     while (tb.children.length < s.finds.length) {
       const f = s.finds[tb.children.length], tr = document.createElement("tr");

@@ -1,4 +1,5 @@
-"""The replay's plots, one PNG each: cells explored and targets found over the mission, distance flown
+"""The replay's plots, one PNG each: cells explored, targets found and the probability of success (POS,
+when the recording has it) over the mission, distance flown
 per vehicle, battery, link state and flight modes over time. Plots that need what a log does not have
 are left out (cells explored needs knowledge; battery needs battery telemetry), and `write_plots`
 returns only the files it wrote."""
@@ -13,6 +14,7 @@ import numpy as np
 from swarmctl.bounds import finite
 from swarmctl.replay.panels import _plt
 from swarmctl.replay.recording import Replay
+from swarmctl.replay.summary import pos_series
 
 
 def _axis(replay: Replay) -> tuple[np.ndarray, str]:
@@ -56,6 +58,16 @@ def write_plots(replay: Replay, out: Path) -> list[Path]:
         ax.set(xlabel=label, ylabel="targets found", title=f"{replay.name}: targets found")
         ax.yaxis.get_major_locator().set_params(integer=True)
         paths.append(_save(fig, out / "targets.png"))
+    series = pos_series(replay)
+    if series is not None:
+        fig, ax = plt.subplots(figsize=(6.4, 3.2))
+        ax.plot(series[0], series[1], color="tab:purple", lw=2, label="POS")
+        goal = (replay.summary or {}).get("pos_goal")
+        if isinstance(goal, (int, float)) and finite(goal, 0.0, 1.0):
+            ax.axhline(float(goal), color="grey", ls=":", lw=1, label=f"goal {goal:g}")
+        ax.set(xlabel="decision step", ylabel="probability of success", ylim=(0, 1.01), title=f"{replay.name}: POS")
+        ax.legend(fontsize=7)
+        paths.append(_save(fig, out / "pos.png"))
     names = [v.name for v in replay.vehicles]
     fig, ax = plt.subplots(figsize=(max(4.0, 0.45 * len(names) + 2), 3.4))
     flown = [v.distance_m for v in replay.vehicles]

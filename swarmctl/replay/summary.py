@@ -1,5 +1,6 @@
 """The replay's text summary: the outcome line `fly` prints, the vehicle table of its live view (state,
-cell, battery, link, targets) at the end of the replay, the targets found, and what was skipped."""
+cell, battery, link, targets) at the end of the replay, the targets found, how the search's probability
+of success (POS) rose when the recording has it, and what was skipped."""
 
 from __future__ import annotations
 
@@ -15,6 +16,34 @@ def _last_state(replay: Replay, k: int) -> str:
         if states:
             return states[-1]
     return next((s for s in reversed(v.states) if s), "-")
+
+
+def pos_series(replay: Replay) -> tuple[np.ndarray, np.ndarray] | None:
+    """(steps, POS) of the recording's step lines that carry a `pos` (None: a recording from before POS)."""
+    if replay.events is None:
+        return None
+    rows = [(e["step"], e["pos"]) for e in replay.events.of("step") if isinstance(e.get("pos"), (int, float))]
+    if not rows:
+        return None
+    steps, pos = zip(*rows)
+    return np.asarray(steps, dtype=np.int64), np.asarray(pos, dtype=np.float64)
+
+
+def pos_lines(replay: Replay) -> list[str]:
+    """The POS the search reached, its goal, and how it rose (a line; none for recordings without it)."""
+    series = pos_series(replay)
+    if series is None:
+        return []
+    steps, pos = series
+    summary = replay.summary or {}
+    goal = summary.get("pos_goal")
+    prior = next(iter(replay.events.of("prior")), None) if replay.events is not None else None
+    against = f" against {prior['source']}, pod {prior['pod']:g}" if prior is not None else ""
+    marks = [f"{q:.0%} at step {int(steps[np.argmax(pos >= q)])}" for q in (0.25, 0.5, 0.75, 0.9) if pos[-1] >= q]
+    line = f"POS {pos[-1]:.4f} at step {int(steps[-1])}{against}"
+    if isinstance(goal, (int, float)):
+        line += f" (goal {goal:g}: {'met' if pos[-1] >= goal else 'not met'})"
+    return [line + (f"; reached {', '.join(marks)}" if marks else "")]
 
 
 def outcome_line(replay: Replay) -> str:
@@ -72,6 +101,7 @@ def summary_lines(replay: Replay) -> list[str]:
             f"truth: {len(hidden)} hidden targets, {len(hidden) - len(missed)} found"
             + (f"; not found: {', '.join(f'{x},{y}' for x, y in missed)}" if missed else "")
         )
+    lines += pos_lines(replay)
     lines += damage_lines(replay)
     lines += [f"note: {n}" for n in replay.notes]
     return lines

@@ -12,11 +12,11 @@ fix, home with the EKF origin, the EKF's absolute position last), pre-arm checks
 mode (healthy in STABILIZE before GUIDED can arm; "PreArm:" texts; an arm refused with FAILED + "Arm:
 Need Position Estimate"), any mode taken while disarmed, takeoff only when armed in GUIDED,
 COMMAND_ACK results, SET_MESSAGE_INTERVAL (a fresh ArduPilot sends only heartbeats), parameters (its
-speeds among them), simple kinematics, a draining battery, a GCS failsafe, signing, faults injected
-from tests (the slow EKF among them), a TCP port served as SITL serves SERIAL0 (serial0.py: boot on the
-first client, console text before MAVLink), and a geofence (uploaded with the mission protocol, see
-fence.py) that it enforces: a position target outside it is refused, as ArduCopter's GUIDED mode and
-PX4's reposition refuse one.
+speeds among them), simple kinematics, a draining battery (swapped on the ground: `swap_battery`), a
+GCS failsafe, signing, faults injected from tests (the slow EKF among them), a TCP port served as SITL
+serves SERIAL0 (serial0.py: boot on the first client, console text before MAVLink), and a geofence
+(uploaded with the mission protocol, see fence.py) that it enforces: a position target outside it is
+refused, as ArduCopter's GUIDED mode and PX4's reposition refuse one.
 
 Time: physics (speeds, climb, battery, the boot) runs `speedup` times faster than the wall clock; link
 timing (heartbeat 1 Hz, message intervals, failsafe timeout, latency, faults' durations) stays in
@@ -293,6 +293,26 @@ class MockAutopilot(MockTelemetry, MockFlight, MockCommands):
         """Go silent for `downtime` s, then boot again: disarmed, on the ground, streams reset."""
         self._down_until = time.monotonic() + downtime
         self._reboot_pending = True
+
+    @property
+    def landed_disarmed(self) -> bool:
+        """On the ground and disarmed: where a crew may swap its battery."""
+        return not self.armed and self.rel_alt <= 0.05
+
+    def swap_battery(self, charge: float = 100.0, downtime: float = 1.0) -> bool:
+        """A fresh battery of `charge` %, as a crew swaps one at the launch point: only while landed and
+        disarmed (False, and nothing changes, otherwise). The autopilot loses power with the old battery
+        and boots on the new one: silent for `downtime` wall seconds, then `reboot`'s boot, reporting the
+        new charge, as ArduCopter restarts with a fresh battery (SITL: restarted, its simulated battery
+        full again)."""
+        if not 0.0 <= charge <= 100.0:
+            raise ValueError(f"a battery's charge is 0..100 %, not {charge!r}")
+        with self._lock:
+            if not self.landed_disarmed:
+                return False
+            self.battery = float(charge)
+        self.reboot(downtime)
+        return True
 
     def refuse_arming(self, reason: str | None = "Hardware safety switch") -> None:
         """Fail every arm command with an "<arm prefix>: <reason>" STATUSTEXT (ArduPilot "Arm:", PX4

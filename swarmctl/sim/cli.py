@@ -74,6 +74,20 @@ def parse_home(text: str) -> tuple[float, float, float]:
     help="Seconds without a controller heartbeat before RTL (0 disables).",
 )
 @click.option(
+    "--battery-drain",
+    type=real(0, 100),
+    default=0.08,
+    show_default=True,
+    help="Battery drain, % per simulated second while flying (a tenth of it armed on the ground).",
+)
+@click.option(
+    "--swap-battery",
+    type=real(0, 3600),
+    default=0.0,
+    help="Seconds after the vehicle has landed and disarmed with a used battery before a crew swaps it "
+    "for a full one (it reboots on the new battery); 0: never.",
+)
+@click.option(
     "--duration", type=real(0, 1e7), default=0.0, help="Stop after this many seconds (0: run until interrupted)."
 )
 def mock_vehicle_command(
@@ -86,6 +100,8 @@ def mock_vehicle_command(
     signing_key: str | None,
     ready_after: float,
     gcs_failsafe: float,
+    battery_drain: float,
+    swap_battery: float,
     duration: float,
 ) -> None:
     """Run a mock ArduCopter or PX4 vehicle that speaks MAVLink over a real socket."""
@@ -107,6 +123,7 @@ def mock_vehicle_command(
         signing_key=key,
         ready_after=ready_after,
         gcs_failsafe_timeout=gcs_failsafe if gcs_failsafe > 0 else None,
+        battery_drain=battery_drain,
     )
     mock.start()
     try:
@@ -114,8 +131,18 @@ def mock_vehicle_command(
             f"mock {autopilot} vehicle {sysid} on {connection}{' (signing)' if key else ''}; Ctrl-C to stop", err=True
         )
         end = time.monotonic() + duration if duration > 0 else math.inf
+        down_since: float | None = None  # since when it has been landed and disarmed with a used battery
         while time.monotonic() < end:
             time.sleep(0.2)
+            if swap_battery <= 0:
+                continue
+            if not mock.landed_disarmed or mock.battery >= 100.0:
+                down_since = None
+            elif down_since is None:
+                down_since = time.monotonic()
+            elif time.monotonic() - down_since >= swap_battery and mock.swap_battery():
+                click.echo(f"mock vehicle {sysid}: battery swapped, rebooting on a full one", err=True)
+                down_since = None
     finally:
         mock.stop()
 

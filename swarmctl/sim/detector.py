@@ -4,6 +4,12 @@ A mock vehicle carries a hidden scenario (targets, the value map from swarmctl.w
 the grid's blocked cells) and, each time it hovers at the mission altitude within `tolerance` metres
 of a cell centre, reports that cell (and repeats the report every `repeat` seconds while it stays),
 in the TUNNEL payloads swarmctl.mission.detector describes.
+
+With a probability of detection `pod` below 1 the detector misses: a target that enters the footprint
+(at the first report of a cell the vehicle has just reached) is reported with probability pod, drawn
+from `seed` and the vehicle's index; while it stays in the footprint, as the vehicle moves on or
+stays, the detector keeps its verdict: the same look, as swarmctl.world.prior counts passes. pod 1
+draws nothing.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import numpy as np
 from swarmctl.knowledge.codec import PAYLOAD_SIZE, KnowledgeCodec
 from swarmctl.knowledge.model import Delta, Detection, disc_cells, quantise_phi
 from swarmctl.mavlink.codec import distance_m
+from swarmctl.world.prior import check_pod
 from swarmctl.world.scenario import value_map
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -53,8 +60,13 @@ class SimDetector:
         tolerance: float = 1.0,
         repeat: float = REPORT_REPEAT_S,
         udp: tuple[str, int] | None = None,
+        pod: float = 1.0,
+        seed: int = 0,
     ):
         self.grid = grid
+        self.pod = check_pod(pod)
+        self._rng = np.random.default_rng([int(seed), int(vehicle_index)])
+        self._pass: tuple[tuple[int, int] | None, dict[tuple[int, int], bool]] = (None, {})  # cell, verdicts
         w, h = grid.width, grid.height
         self.targets = np.asarray(targets, dtype=np.int64).reshape(-1, 2)
         self.phi = value_map(self.targets, w, h)
@@ -113,11 +125,26 @@ class SimDetector:
         x, y = c[:, 0], c[:, 1]
         return c, self.phi[x, y], self.obstacle[x, y], c[self.target_mask[x, y]]
 
+    def seen(self, cell: tuple[int, int], targets: np.ndarray) -> np.ndarray:
+        """The targets in the footprint round `cell` this pass reports: each with probability pod, drawn
+        once a pass (a report of another cell than the last starts a new one)."""
+        if self.pod >= 1.0:
+            return targets
+        if self._pass[0] != cell:  # a new cell: a draw for each target entering the footprint
+            before = self._pass[1]
+            verdicts = {}
+            for t in map(tuple, targets.tolist()):
+                verdicts[t] = before[t] if t in before else bool(self._rng.random() < self.pod)
+            self._pass = (cell, verdicts)
+        seen = [self._pass[1].get(tuple(t), False) for t in targets.tolist()]
+        return targets[np.asarray(seen, dtype=bool)] if len(targets) else targets
+
     def payloads(self, cell: tuple[int, int]) -> list[tuple[int, bytes]]:
         cells, phi, obstacle, targets = self.observe(cell)
         with self._lock:
             self._count += 1
             step = self._count
+            targets = self.seen(cell, targets)
         out: list[tuple[int, bytes]] = []
         if len(targets):
             out += self.codec.encode(Detection(self.vehicle_index, step, cell, False, targets))

@@ -93,7 +93,8 @@ class MockTelemetry(MockBase):
         return self.lat, self.lon
 
     def _time_boot_ms(self) -> int:
-        return int((time.monotonic() - self.boot_wall) * 1000) & 0xFFFFFFFF
+        """Simulated milliseconds since boot: SITL's clock, which runs at its speed-up."""
+        return int(self.sim_time * 1000) & 0xFFFFFFFF
 
     def _build(self, msg_id: int) -> Any:
         home_lat, home_lon, home_alt = self.home

@@ -110,6 +110,7 @@ class SimSwarm:
     # this area would have it, reaching the grid's fence from the launch cell (at least the default 300 m)
     fence_radius: float | None = None
     carry_detectors: bool = True
+    pod: float = 1.0  # the detectors' probability of detection per pass (swarmctl.sim.detector), seeded by `seed`
     # each vehicle's MAVLink link through a LossyRelay with these faults each way (None: direct); the
     # relays' seeds follow the mocks'
     link_faults: LinkFaults | None = None
@@ -169,6 +170,8 @@ class SimSwarm:
                         self.grid.altitude if self.altitude is None else self.altitude,
                         fov=FOV_CELLS if self.fov is None else self.fov,
                         udp=detector,
+                        pod=self.pod,
+                        seed=self.seed,
                     )
                     det.attach(mock)
                     self.detectors.append(det)
@@ -221,6 +224,8 @@ class SimSwarm:
             settings.setdefault("altitude", self.altitude)
         if self.fov is not None:
             settings.setdefault("footprint_m", self.fov * self.grid.cell)
+        if self.pod != 1.0:  # the mission scores its search with the detectors' pod ([sensing] pod)
+            settings.setdefault("pod", self.pod)
         if radio and self.radio is None:
             self.radio = Radio(self.channel or Channel("ideal"), seed=self.seed)
         plan = sim_plan(
@@ -289,6 +294,8 @@ def sim_plan(
         channel=Endpoint("udpout", channel[0], int(channel[1])) if channel is not None else None,
         signing_key=None,  # the mock vehicles do not sign
     )
+    if not policy.follows_routes:  # a base's pattern keys go with its pattern policy only
+        own.update(lkp=None, spacing_m=None)
     where = str(mission_file) if mission_file is not None else "demo"
     spec = MissionSpec.build(vehicles, base, where, **{**DEMO_SETTINGS, **own, **settings})
     plan = make_plan(spec, grid=grid, policy=policy, seed=seed, mission_file=mission_file)

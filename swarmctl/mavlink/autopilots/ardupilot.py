@@ -714,3 +714,8 @@ class ArduPilotVehicle(Vehicle):
     def battery_remaining(self) -> int | None:
         st = self._msg("SYS_STATUS")
         return None if st is None or st.battery_remaining < 0 else int(st.battery_remaining)
+
+    @property
+    def clock_s(self) -> float | None:
+        m = self._msg("GLOBAL_POSITION_INT")
+        return None if m is None else m.time_boot_ms / 1000.0
