@@ -941,7 +941,8 @@ class SearchTrainer:
         net, info, snapshot = resume_snapshot(self.out)
         saved = info.get("train") or {}
         same_options(self.out, saved, {k: v for k, v in asdict(self.cfg).items() if k not in RESUME_FREE})
-        if saved.get("recipe") != self.rules or info["world"] != self.world.as_dict():
+        # a checkpoint saved before a world field existed holds its default (WorldConfig fills it in)
+        if saved.get("recipe") != self.rules or WorldConfig(**info["world"]).as_dict() != self.world.as_dict():
             raise InputError(f"{self.out}: was trained on another world or rules; resume with the run's own options")
         self.q_net.load_state_dict(net.state_dict())
         self.target_net.load_state_dict(snapshot["target"])
