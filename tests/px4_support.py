@@ -41,7 +41,15 @@ PX4_ENV = ("PX4_SITL", "SWARMCTL_PX4")  # the first one set wins
 PX4_DEFAULT = SHARED / "px4" / "bin" / "px4"
 PX4_INSTANCES = tuple(range(5, 10))  # PX4 -i 5-9 (system id 6-10)
 PX4_HOME = (41.879653, -87.635357, 180.0)  # lat, lon, alt AMSL: the Chicago Loop take-off point
-PX4_ENV_VARS = {"PX4_SYS_AUTOSTART": "10040", "PX4_SIMULATOR": "sihsim", "PX4_SIM_MODEL": "sihsim_quadx"}
+# SIM_BAT_DRAIN: PX4's simulated battery empties in 60 s by default (to SIM_BAT_MIN_PCT 50 %, where it
+# holds), a drain no vehicle has: the controller's energy rule (swarmctl.mission.energy) measures it and
+# rightly sends the vehicle home within a minute. 1800 s is a search quadcopter's half hour.
+PX4_ENV_VARS = {
+    "PX4_SYS_AUTOSTART": "10040",
+    "PX4_SIMULATOR": "sihsim",
+    "PX4_SIM_MODEL": "sihsim_quadx",
+    "PX4_PARAM_SIM_BAT_DRAIN": "1800",
+}
 AUTOPILOT_PX4 = 12  # MAV_AUTOPILOT_PX4
 _ALIAS = re.compile(r"^alias ([A-Za-z_0-9]+)=", re.MULTILINE)
 
