@@ -54,8 +54,12 @@ def test_the_keys_are_read(tmp_path):
 @pytest.mark.parametrize(
     "key, value, says",
     [
-        ("finish", '"all"', 'mission.finish = "all": must be one of held, found, covered; write for example finish ='),
-        ("finish", "1", "mission.finish = 1: must be one of held, found, covered"),
+        (
+            "finish",
+            '"all"',
+            'mission.finish = "all": must be held, found, covered or pos >= X (0 < X <= 1); write for example finish =',
+        ),
+        ("finish", "1", "mission.finish = 1: must be held, found, covered or pos >= X (0 < X <= 1)"),
         ("expected_targets", "0", "mission.expected_targets = 0: must be a whole number from 1 to 32768 (targets)"),
         ("expected_targets", "-3", "mission.expected_targets = -3: must be a whole number from 1"),
         ("expected_targets", "40000", "mission.expected_targets = 40000: must be a whole number from 1 to 32768"),
@@ -100,7 +104,7 @@ def test_built_specs_route_the_keys_and_demo_refuses_contradictions_naming_its_o
         (["--on-find", "mark"], "--on-find mark with the default finish held: a marking vehicle never hovers"),
         (["--finish", "held", "--expected-targets", "4", "--uavs", "3"], "--expected-targets 4: more than the 3"),
         (["--expected-targets", "0"], "Invalid value for '--expected-targets': 0 is not in the range 1<=x<=32768"),
-        (["--finish", "some"], "Invalid value for '--finish'"),
+        (["--finish", "some"], "--finish 'some': must be held, found, covered or pos >= X"),
     ):
         assert main(["demo", "--out", str(tmp_path / "never"), *argv]) == 2
         err = capsys.readouterr().err

@@ -21,7 +21,7 @@ from swarmctl.cli_options import options_from
 from swarmctl.errors import EXIT_FAILED, InputError
 from swarmctl.mission.spec import DEMO_SETTINGS, END_ACTIONS, ON_FIND, MissionSpec, MissionTable, TimingTable
 from swarmctl.mission.web_page import WEB_FIELDS, WEB_OVERRIDES, WebOptions, WebSetup, probe, web_setup
-from swarmctl.world.config import CHANNELS, FINISHES
+from swarmctl.world.config import CHANNELS
 
 if TYPE_CHECKING:  # pragma: no cover
     from swarmctl.mission.decide import FieldPolicy
@@ -163,10 +163,11 @@ def web_from(web: str | None, web_token_file: str | None) -> WebSetup | None:
 )
 @click.option(
     "--finish",
-    type=click.Choice(FINISHES),
     default=None,
+    metavar="LINE",
     help="When the search is complete: held (N targets hovered on), found (N targets found; N unknown: the "
-    "area covered) or covered (every reachable cell explored). Default: the --mission file's, else held.",
+    "area covered), covered (every reachable cell explored) or 'pos >= X' (the probability of success "
+    "against the prior reaches X). Default: the --mission file's, else held.",
 )
 @click.option(
     "--expected-targets",
@@ -225,7 +226,7 @@ def demo_command(
     from swarmctl.mission.decide import FieldPolicy
     from swarmctl.mission.plan import check_grid_size, load_grid
     from swarmctl.mission.service import LiveView, draw_mission, run_controller
-    from swarmctl.mission.spec import GroundStation, load_spec, parse_option
+    from swarmctl.mission.spec import GroundStation, MissionFinish, load_spec, parse_option
     from swarmctl.replay.truth import write_truth
     from swarmctl.sim.swarm import SimSwarm
     from swarmctl.world.channel import Channel
@@ -236,6 +237,8 @@ def demo_command(
         settings["gcs"] = parse_option(GroundStation, gcs, "--gcs")
     if fence:
         settings["fence"] = True
+    if finish is not None:
+        finish = parse_option(MissionFinish, finish, "--finish")
     note = None
     if policy is None:
         field_policy, note = default_policy(seed)

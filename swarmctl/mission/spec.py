@@ -191,7 +191,7 @@ def _finish(value: object) -> str:
         if goal is not None and 0.0 < goal <= 1.0:
             return f"pos >= {goal:g}"
     raise SpecError(
-        "must be one of held, found, covered",
+        f"must be {FINISH_FORMS}",
         'write for example finish = "covered", or finish = "pos >= X" with 0 < X <= 1 (e.g. "pos >= 0.9")',
         example="pos >= 0.9",
     )
