@@ -19,6 +19,7 @@ from swarmctl.mission.service import run_controller
 from swarmctl.mission.spec import load_spec, pos_goal
 from swarmctl.replay.recording import load as load_replay
 from swarmctl.replay.summary import pos_lines
+from swarmctl.replay.verify import verify
 from swarmctl.sim.detector import SimDetector
 from swarmctl.sim.swarm import SimSwarm
 from tests.mission_support import small_grid, small_mission
@@ -140,7 +141,7 @@ def test_the_pos_finish_line_pod_and_prior_keys_are_read_and_checked(tmp_path):
     assert load_spec(path).sensing.pod == 0.8
     assert pos_goal("covered") is None
     for finish, says in [
-        ('"pos >= 1.2"', 'held, found, covered; write for example finish = "covered", or finish = "pos >= X"'),
+        ('"pos >= 1.2"', 'or pos >= X (0 < X <= 1); write for example finish = "covered", or finish = "pos >= X"'),
         ('"pos > 0.9"', "0 < X <= 1"),
         ('"pos >= 0"', "0 < X <= 1"),
         ('"pos >= 1"', "pod = 0.8"),
@@ -244,6 +245,8 @@ def test_a_flight_to_its_pos_goal_records_the_prior_the_rising_pos_and_the_summa
     assert pos and all(b >= a for a, b in zip(pos, pos[1:])) and pos[-1] >= 0.6 > pos[0]
     replay = load_replay(out)
     assert pos_lines(replay)[0].startswith(f"POS {pos[-1]:.4f}") and "goal 0.6: met" in pos_lines(replay)[0]
+    with pytest.raises(InputError, match="weighed a prior or a detector that misses"):
+        verify(out)  # the density it decided on is not recorded: refused in one line, not a false mismatch
     # a recording from before POS (no prior event, no step pos) still replays, without a POS line
     old = [e for e in lines if e["event"] != "prior"]
     for e in old:

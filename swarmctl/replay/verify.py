@@ -323,6 +323,13 @@ def verify(
     if not inputs_path.is_file() and any(e["vehicles"] for e in steps.values()):
         raise InputError(f"{inputs_path}: not found (the recording's decisions cannot be checked without it)")
     policy = rebuild_policy(mission, model)
+    priors = events.of("prior")
+    if priors and policy.uses_prior and (priors[0].get("source") != "uniform" or priors[0].get("pod", 1.0) != 1.0):
+        raise InputError(
+            f"cannot verify {folder}: its planner weighed a prior or a detector that misses (the prior event), "
+            "and the recording keeps no per-round density to decide again from; missions flown by ddql, or "
+            "with neither, verify"
+        )
     report = Report(
         str(mission["policy"]), int(mission["seed"]), policy.weights_sha256, policy.forward, min_probability
     )
