@@ -511,3 +511,28 @@ def _watched(link: MavlinkLink, fd: int) -> bool:
 
     sockets = inbox_for(asyncio.get_running_loop())._sockets
     return sockets is not None and fd in {key.fd for key in sockets.get_map().values()}
+
+
+@pytest.mark.slow
+def test_a_controller_stalled_longer_than_the_loss_time_sees_the_loss_as_it_runs_again():
+    """The event loop blocked 4.5 s (a stopped or starved process): the frames the socket kept are read as
+    it runs again, maybe before the watchdog's turn (here: the watchdog never runs); the vehicle was silent
+    to us all the same: lost, then back with its heartbeat (never an unbroken link whose failsafe mode
+    looks like a pilot's)."""
+
+    async def scenario():
+        link, ctx = await one_vehicle()
+        try:
+            with ctx:
+                v = ArduPilotVehicle(link, 1)
+                await v.connect(5)
+                await link.wait_until(lambda: "GLOBAL_POSITION_INT" in link.peers[1].messages, 5, "telemetry", "v1")
+                link._check_heartbeats = lambda now: None  # the watchdog never gets its turn first
+                time.sleep(4.5)  # noqa: ASYNC251 - the stall under test: nothing on this loop runs
+                await link.wait_until(lambda: [e for _t, _s, e in link.events][-1:] == ["back"], 3, "back", "v1")
+                await v.close()
+                return [e for _t, _s, e in link.events]
+        finally:
+            await link.close()
+
+    assert run(scenario()) == ["seen", "lost", "back"]

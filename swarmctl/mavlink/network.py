@@ -391,6 +391,8 @@ class MavlinkLink:
             peer = peers.get(src)
             if peer is not None:
                 if header.srcComponent == peer.compid and not peer.lost and peer.heartbeat is not None:
+                    self._silent_since_heard(peer, now)
+                if header.srcComponent == peer.compid and not peer.lost and peer.heartbeat is not None:
                     # any frame of its autopilot keeps the link up: with 1 Hz heartbeats alone, a link
                     # losing 20 % gave 3 false losses in a 90 s search of 3 vehicles (tools/lossy_links.py).
                     # A lost one is back only with a heartbeat: its mode and armed state are the heartbeat's,
@@ -467,12 +469,25 @@ class MavlinkLink:
         if peer is None:
             peer = self.peers[src] = Peer(sysid=src)
         first = peer.heartbeat is None
+        if not first and msg.get_srcComponent() == peer.compid:
+            self._silent_since_heard(peer, now)
         peer.compid = msg.get_srcComponent()
         peer.heartbeat, peer.last_heartbeat, peer.last_heard = msg, now, now
         if first or peer.lost:  # its "back" (or first, "seen") event
             peer.lost = False
             if src in self.expected:
                 self._link_event(peer, "back")
+
+    def _silent_since_heard(self, peer: Peer, now: float) -> None:
+        """A frame of a vehicle not heard for more than lost_after: it was lost, whether or not the watchdog
+        ran meanwhile. A process stopped or starved that long reads the frames its socket kept as it runs
+        again, maybe before the watchdog's turn: the vehicle's GCS failsafe has acted on the silence all the
+        same, and the controller must see the loss (then, with a heartbeat, the vehicle back) to rejoin it
+        rather than take the failsafe's mode for a pilot's."""
+        if not peer.lost and peer.heartbeat is not None and now - peer.last_heard > self.lost_after:
+            peer.lost = True
+            if peer.sysid in self.expected:
+                self._link_event(peer, "lost")
 
     def _check_waiters(self, msg: Any) -> None:
         for pred, fut in list(self._waiters):
