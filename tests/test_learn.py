@@ -1,6 +1,7 @@
 """The Q-network, checkpoints, exploration, and small seconds-long training runs."""
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +16,10 @@ from swarmctl.learn.evaluate import evaluate
 from swarmctl.policy.base import softmax_sample
 from swarmctl.policy.checkpoint import load_checkpoint, save_checkpoint
 from swarmctl.policy.ddql import make_ddql_policy
-from swarmctl.policy.qnet import QNetwork, parameter_count
-from swarmctl.world import WorldConfig
+from swarmctl.policy.qnet import QNetwork, make_network, parameter_count
+from swarmctl.policy.registry import make_policy
+from swarmctl.world import SearchEnv, WorldConfig
+from swarmctl.world.beliefs import PAPER_VARIANT, SCALES_VARIANT
 
 TINY_WORLD = WorldConfig(map_size=6, uavs=1, targets=1, window=8)
 
@@ -74,6 +77,27 @@ def test_checkpoint_round_trip_and_validation(tmp_path):
         load_checkpoint(plain)
     with pytest.raises(InputError, match="no such checkpoint"):
         load_checkpoint(tmp_path / "missing.pt")
+
+
+def test_a_model_observes_with_its_own_window_and_variant_whatever_the_worlds(tmp_path):
+    """`ddql:PATH` alone flies a model as it was trained: in a world of another window and variant (as
+    beside a policy that takes those) it moves as in a world of its own."""
+    world = WorldConfig(map_size=14, uavs=3, targets=3, window=11, variant=SCALES_VARIANT)
+    torch.manual_seed(0)
+    path = tmp_path / "scales.pt"
+    save_checkpoint(path, make_network(SCALES_VARIANT, 11), world.as_dict(), {"episodes": 1}, {"seed": 0})
+    played = []
+    for window, variant in ((11, SCALES_VARIANT), (8, PAPER_VARIANT)):
+        env = SearchEnv(replace(world, window=window, variant=variant), batch=3, observations=False)
+        env.reset(seed=4)
+        policy = make_policy(f"ddql:{path}")
+        policy.reset(env.beliefs(), 4)
+        moves = []
+        for _ in range(6):
+            moves.append(policy.act(env.beliefs()))
+            env.step(moves[-1])
+        played.append(np.stack(moves))
+    assert np.array_equal(played[0], played[1])
 
 
 def test_a_checkpoint_carries_its_weights_hash_and_damaged_or_non_finite_weights_are_refused(tmp_path):

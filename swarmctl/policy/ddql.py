@@ -95,17 +95,7 @@ class DDQLPolicy:
         self.seed = 0
         self.frontier = FrontierPolicy()
 
-    def check(self, beliefs: Beliefs) -> None:
-        """The beliefs must observe what the network takes (its window)."""
-        f = beliefs.settings.window
-        if f != self.net.window:
-            raise InputError(
-                f"{self.path}: the model was trained for {self.net.window} x {self.net.window} "
-                f"observations, not {f} x {f}; use --window {self.net.window}"
-            )
-
     def reset(self, beliefs: Beliefs, seed: int) -> None:
-        self.check(beliefs)
         self.seed = int(seed)
         self.frontier.reset(beliefs, seed)  # its own streams: the network's draws stay as they were
 
@@ -115,9 +105,11 @@ class DDQLPolicy:
         return self.forward(obs.reshape(b * u, *obs.shape[2:])).reshape(b, u, -1)
 
     def decide(self, beliefs: Beliefs) -> Decision:
-        seen = beliefs  # observed in the network's own variant, whatever the world trains others on
-        if beliefs.settings.variant != self.net.variant:
-            seen = beliefs.with_settings(variant=self.net.variant)
+        # observed in the network's own variant and window, whatever the world's (or another policy's) are:
+        # `ddql:PATH` flies a model as it was trained, with no observation option to repeat
+        seen, own = beliefs, {"variant": self.net.variant, "window": self.net.window}
+        if any(getattr(beliefs.settings, k) != v for k, v in own.items()):
+            seen = beliefs.with_settings(**own)
         obs = observe(seen, self.remove_taken)
         q = self.q_values(obs)
         u = Draws(self.seed, beliefs).deciders(SOFTMAX)
