@@ -49,7 +49,9 @@ def test_single_policy_json_is_still_a_list(tmp_path):
     assert len(json.loads(out.read_text())["results"]) == 1
 
 
-def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path):
+def test_bench_json_names_units_and_measures_the_limits_in_the_same_run(tmp_path, monkeypatch):
+    # the search trainer's figures have their own test (tests/test_bench_search.py)
+    monkeypatch.setattr("swarmctl.bench.search_training_figures", lambda *args, **kwargs: {})
     out = tmp_path / "b.json"
     assert main(["bench", "--seconds", "0.05", "--json", str(out)]) == 0
     data = json.loads(out.read_text())
