@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 import torch
 from click.testing import CliRunner
+from hypothesis import given
+from hypothesis import strategies as st
 
 from swarmctl.cli import cli as root
 from swarmctl.cli_options import FieldOption, field_default
@@ -25,6 +27,8 @@ from swarmctl.learn.search_recipe import (
     CityCrops,
     RewardWeights,
     SearchTrainer,
+    encode_label,
+    labelled_moves,
     margin_loss,
     nstep_returns,
     rollout,
@@ -121,6 +125,49 @@ def test_the_margin_loss_is_zero_once_the_demonstrated_move_leads_by_the_margin(
     assert loss[2] == pytest.approx(1.5 + 0.8 - 2.1)
 
 
+def test_a_label_naming_several_moves_asks_the_best_of_them_to_lead_the_others_only():
+    q = torch.tensor([[1.0, 3.0, 2.9, 0.5, 0.0]] * 2)
+    allowed = torch.ones(2, 5, dtype=torch.bool)
+    ties = np.zeros((2, 5), dtype=bool)
+    ties[0, [1, 2]] = True  # north and east as good: the label asks nothing between them
+    label = torch.from_numpy(encode_label(np.array([2, 2]), ties))
+    for form in ("max", "sum"):
+        loss = margin_loss(q, label, allowed, 0.8, form)
+        assert loss[0] == 0.0  # the best labelled move (north, 3.0) leads the others (1.0) by the margin
+        assert loss[1] > 0  # east alone: north is inside the margin
+    assert margin_loss(q, label, allowed, 0.8, "sum")[1] == pytest.approx(3.0 + 0.8 - 2.9)
+
+
+@given(st.lists(st.tuples(st.integers(0, 4), st.lists(st.booleans(), min_size=5, max_size=5)), min_size=1))
+def test_labels_decode_to_the_teachers_move_and_every_move_as_good(cases):
+    moves = np.array([m for m, _ in cases])
+    ties = np.array([t for _, t in cases], dtype=bool)
+    move, labelled = labelled_moves(torch.from_numpy(encode_label(moves, ties)), 5)
+    assert move.tolist() == moves.tolist()
+    expected = ties.copy()
+    expected[np.arange(len(moves)), moves] = True
+    assert np.array_equal(labelled.numpy(), expected)
+    plain, only = labelled_moves(torch.from_numpy(moves), 5)  # a label of a run before teacher_ties
+    assert plain.tolist() == moves.tolist() and only.sum(1).tolist() == [1] * len(moves)
+
+
+def test_the_teacher_labels_its_own_move_and_the_moves_as_good_into_free_cells():
+    env = SearchEnv(WorldConfig(scenario="cluster", uavs=3, targets=4, obstacles=0.1), batch=8, stop_at_success=False)
+    env.reset(seed=3)
+    teacher = CoordinatedPolicy()
+    teacher.reset(env.beliefs(), 3)
+    tied = 0
+    for _ in range(20):
+        beliefs = env.beliefs()
+        moves, ties = teacher.labels(beliefs)
+        assert np.array_equal(moves, teacher.act(beliefs))
+        assert np.take_along_axis(ties, moves[..., None], -1).all()
+        assert not (ties & ~search_mask(beliefs)).any()  # never a move off the map or into a blocked cell
+        tied += int((ties.sum(-1) > 1).sum())
+        env.step(moves)
+    assert tied > 0.05 * 20 * 8 * 3  # ties are common: the label "one" marks as worse a move as good
+
+
 def test_demonstrations_are_the_same_for_a_seed_whatever_the_batch():
     cfg = WorldConfig(map_size=12, uavs=2, targets=3, window=10)
 
@@ -199,6 +246,7 @@ def test_a_tiny_run_trains_saves_resumes_and_ends_where_an_unbroken_one_does(tmp
     saved = torch.load(out, weights_only=True)
     for key in ("pod", "pos_goal"):  # as a checkpoint saved before those world fields existed
         del saved["world"][key]
+    del saved["train"]["teacher_ties"]  # and before the option: its labels were the moves alone
     torch.save(saved, out)
     resumed = train(TINY_WORLD, cfg, out, progress=False, resume=True)
     assert counters(resumed) == counters(whole)
@@ -305,3 +353,18 @@ def test_the_next_stage_opens_at_its_bar_and_the_earlier_one_stays_in_the_replay
     run.resume()
     assert [s.size for s in run.agents][0] > 0 and all(s.size > 0 for s in run.demos)
     assert split_counts(16, [s.size for s in run.demos], 1, cfg.current_share) == [8, 8]
+
+
+def test_a_run_labelling_every_move_as_good_keeps_those_labels_and_trains(tmp_path):
+    cfg = SearchConfig(**{**TINY, "teacher_ties": "all"})
+    polls: list[int] = []
+    stopped = train(TINY_WORLD, cfg, tmp_path / "m.pt", progress=False, stop=lambda: polls.append(1) or len(polls) >= 1)
+    assert stopped["stopped"] and stopped["updates"] > cfg.pretrain_updates
+    run = SearchTrainer(TINY_WORLD, cfg, tmp_path / "m.pt")
+    run.resume()
+    labels = run.demos[0].expert[: run.demos[0].size]
+    labels = labels[labels >= 0]
+    move, labelled = labelled_moves(labels, 5)
+    assert (labelled.sum(1) > 1).any() and (move < 5).all()  # some demonstrations name several moves
+    with pytest.raises(InputError, match="teacher_ties"):  # a run resumes with its own labels
+        train(TINY_WORLD, replace(cfg, teacher_ties="one"), tmp_path / "m.pt", progress=False, resume=True)

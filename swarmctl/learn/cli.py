@@ -304,6 +304,7 @@ SEARCH_FIELDS = (  # the SearchConfig fields train-search sets, in the order of 
     "margin",
     "margin_form",
     "margin_weight",
+    "teacher_ties",
     "l2",
     "lr",
     "batch_size",

@@ -22,6 +22,7 @@ from swarmctl.learn.train_config import MAX_EPISODES
 
 HELD_OUT = "chicago"  # no training, selection or curriculum input may name it
 MARGIN_FORMS = ("sum", "max")
+TEACHER_TIES = ("one", "all")  # a label: the teacher's tie-broken move, or every move as good as it
 
 
 def refuse_held_out(text: str, what: str) -> None:
@@ -159,6 +160,15 @@ class SearchConfig:
         ),
     )
     margin_weight: float = field(default=1.0, metadata=dict(lo=0, hi=100, help="Weight of the supervised loss."))
+    teacher_ties: str = field(  # the teacher breaks ties at random: 15-20 % of its labels on 20 x 20 and 50 x 50
+        #                         have another move as good, which "one" marks as worse by the margin
+        default="one",
+        metadata=dict(
+            choices=TEACHER_TIES,
+            help="What a demonstration labels: the teacher's move (one) or every move as good as it (all); "
+            "the margin loss then asks only that the labelled moves lead the others.",
+        ),
+    )
     l2: float = field(  # Adam's weight decay: the gradient of (l2 / 2) |theta|^2
         default=1e-5, metadata=dict(lo=0, hi=1, help="L2 regularisation.")
     )

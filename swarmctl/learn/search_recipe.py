@@ -175,6 +175,24 @@ class Rollout:
     success: np.ndarray  # (B,) bool, it succeeded (its last step is terminal)
 
 
+# A label in the stores: the teacher's move + LABEL_BASE x the bits of the other moves as good as it (none:
+# the move alone, as every run before teacher_ties); -1: no label
+LABEL_BASE = 8
+
+
+def encode_label(moves: np.ndarray, ties: np.ndarray) -> np.ndarray:
+    """(...) int64 labels of the teacher's moves (...) and the moves as good as them (..., 5) bool."""
+    bits = (ties.astype(np.int64) << np.arange(ties.shape[-1])).sum(-1)
+    return moves.astype(np.int64) + LABEL_BASE * bits
+
+
+def labelled_moves(expert: torch.Tensor, n_actions: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """The stores' labels (N,) (>= 0) as the teacher's moves (N,) and every labelled move (N, n_actions) bool."""
+    move = expert % LABEL_BASE
+    bits = (expert // LABEL_BASE)[:, None] >> torch.arange(n_actions, device=expert.device)
+    return move, F.one_hot(move, n_actions).bool() | (bits & 1).bool()
+
+
 # (env, observations (B, U, C, F, F) float32, allowed moves (B, U, 5)) -> moves (B, U)
 Actor = Callable[[SearchEnv, np.ndarray, np.ndarray], np.ndarray]
 
@@ -187,10 +205,12 @@ def rollout(
     act: Actor | None = None,
     teacher: CoordinatedPolicy | None = None,
     after_step: Callable[[], None] | None = None,
+    ties: bool = False,
 ) -> Rollout:
     """Run the episodes `env` was reset to (stop_at_success: each stops at success) for up to `steps` joint
     steps. `act` moves (None: the teacher moves, and labels its own moves); `teacher` labels every state
-    (DAgger) with the step limit as its horizon; `after_step` is called after every joint step."""
+    (DAgger) with the step limit as its horizon, with `ties` every move as good as its own too (encode_label);
+    `after_step` is called after every joint step."""
     if act is None and teacher is None:
         raise ValueError("rollout needs an actor or a teacher")
     if teacher is not None:
@@ -205,8 +225,13 @@ def rollout(
         running = ~env.done
         if not running.any():
             break
-        label = teacher.act(beliefs) if teacher is not None else np.full((b, u), -1, dtype=np.int64)
-        moves = label if act is None else act(env, obs, masks[-1])
+        if teacher is None:
+            label = np.full((b, u), -1, dtype=np.int64)
+        elif ties:
+            label = encode_label(*teacher.labels(beliefs))
+        else:
+            label = teacher.act(beliefs)
+        moves = label % LABEL_BASE if act is None else act(env, obs, masks[-1])
         moves = np.where(running[:, None], moves, STAY)
         obs, reward, succeeded = step_team(env, moves, weights)
         success |= succeeded & running
@@ -499,14 +524,15 @@ def margin_loss(
     q: torch.Tensor, expert: torch.Tensor, allowed: torch.Tensor, margin: float, form: str = "sum"
 ) -> torch.Tensor:
     """Per sample, the large-margin loss of the labelled move a_E over the other allowed moves, 0 once Q(s, a_E)
-    exceeds each of their Q by the margin. `max` (DQfD's): max_a [Q(s, a) + margin [a != a_E]] - Q(s, a_E);
+    exceeds each of their Q by the margin. A label naming several moves as good (encode_label) asks it of the
+    best of them, Q(s, a_E) = their highest Q, over the moves it does not name. `max` (DQfD's): max_a [Q(s, a) + margin [a != a_E]] - Q(s, a_E);
     `sum`: sum over a != a_E of max(0, Q(s, a) + margin - Q(s, a_E)). With the TD losses, on the coordinated
     planner's 20 x 20 demonstrations, the max form left every move's Q equal: its loss stayed at the margin
     through 2,000 pre-training updates (lr 1e-3), and at lr 2.5e-4 the student took the teacher's move in 36 %
     of its states after 2,700 updates; the sum form, which pushes down every move inside the margin and not
     only the highest, took 60 % after 1,200 (lr 1e-3)."""
-    labelled = F.one_hot(expert, q.shape[1]).bool()
-    own = q.gather(1, expert[:, None])
+    _, labelled = labelled_moves(expert, q.shape[1])
+    own = q.masked_fill(~labelled, float("-inf")).max(dim=1, keepdim=True).values
     if form == "max":
         raised = (q + margin * (~labelled).to(q.dtype)).masked_fill(~(allowed | labelled), float("-inf"))
         return raised.max(dim=1).values - own.squeeze(1)
@@ -678,6 +704,7 @@ class SearchTrainer:
         self.stages: tuple[SearchStage, ...] = cfg.curriculum_stages()
         self.weights = RewardWeights.of(cfg)
         self.rules = flight_rules(world)
+        self.ties = cfg.teacher_ties == "all"
         self.city = CityCrops(cfg.city_footprints)
         torch.manual_seed(cfg.seed)
         torch.set_num_threads(cfg.threads)
@@ -717,7 +744,7 @@ class SearchTrainer:
             for start in range(0, cfg.demo_episodes, cfg.parallel_envs):
                 ids = first + np.arange(start, min(start + cfg.parallel_envs, cfg.demo_episodes))
                 env, obs = reset_world(self.world, w, cfg.seed, ids, [cfg.seed, index, j, start, 1], self.city)
-                run = rollout(env, obs, w.steps, self.weights, teacher=CoordinatedPolicy())
+                run = rollout(env, obs, w.steps, self.weights, teacher=CoordinatedPolicy(), ties=self.ties)
                 parts.append(trajectories(run, cfg.n_step, cfg.gamma))
         demos = _concat(parts)
         self.obs_shape = tuple(demos.obs.shape[1:])
@@ -769,6 +796,7 @@ class SearchTrainer:
             act=self.student(epsilon),
             teacher=CoordinatedPolicy() if labelled else None,
             after_step=after_step,
+            ties=self.ties,
         )
         t = trajectories(run, cfg.n_step, cfg.gamma)
         state.samples += t.samples
@@ -939,7 +967,7 @@ class SearchTrainer:
         """Load a stopped run's state from its checkpoint (`out`) and stores (replay_path(out)); stores
         that are lost are rebuilt: the demonstrations recorded again, the student's empty."""
         net, info, snapshot = resume_snapshot(self.out)
-        saved = info.get("train") or {}
+        saved = {"teacher_ties": "one", **(info.get("train") or {})}  # a run from before the option: "one"
         same_options(self.out, saved, {k: v for k, v in asdict(self.cfg).items() if k not in RESUME_FREE})
         # a checkpoint saved before a world field existed holds its default (WorldConfig fills it in)
         if saved.get("recipe") != self.rules or WorldConfig(**info["world"]).as_dict() != self.world.as_dict():

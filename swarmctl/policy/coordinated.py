@@ -111,6 +111,11 @@ class CoordinatedPolicy:
     # --- the plan ----------------------------------------------------------------------------------
     def plan(self, beliefs: Beliefs, hb: np.ndarray, hu: np.ndarray) -> np.ndarray:
         """Every vehicle's move (M, N) in the swarm plan of the holders (hb, hu)."""
+        return self.plan_with_ties(beliefs, hb, hu)[..., 0]
+
+    def plan_with_ties(self, beliefs: Beliefs, hb: np.ndarray, hu: np.ndarray) -> np.ndarray:
+        """(M, N, 1 + 5) int64: every vehicle's move, then which of the 5 moves are as good as it (1: the
+        same path distance to its goal, into a cell it may enter; the tie-break chose among those)."""
         m, n = len(hb), beliefs.vehicles
         w, h = beliefs.width, beliefs.height
         positions = beliefs.positions[hb, hu]  # (M, N, 2)
@@ -139,8 +144,10 @@ class CoordinatedPolicy:
         pending = searching & ~has_goal
         if pending.any():
             self._explore(beliefs, hb, hu, dist, targets, pending, goals, has_goal)
-        moves = self._navigate(beliefs, hb, positions, known, passable, dist, goals, has_goal & searching)
-        return np.where(parked, STAY, moves)
+        moves, ties = self._navigate(beliefs, hb, positions, known, passable, dist, goals, has_goal & searching)
+        moves = np.where(parked, STAY, moves)
+        ties[parked] = np.arange(len(MOVES)) == STAY
+        return np.concatenate([moves[..., None], ties.astype(np.int64)], axis=-1)
 
     def _parking(self, targets: np.ndarray, vehicles: int) -> np.ndarray:
         """(M,) whether the holders' swarm parks on targets now (the hover rule; the step limit is
@@ -244,14 +251,17 @@ class CoordinatedPolicy:
         dist: np.ndarray,
         goals: np.ndarray,
         has_goal: np.ndarray,
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray]:
         """(M, N) moves one step towards each goal, in mission order, never into a cell another vehicle
-        holds or an earlier one enters; a vehicle without a goal stays."""
+        holds or an earlier one enters; a vehicle without a goal stays. And (M, N, 5) bool: the moves as
+        good as each one (the tie-break's choices)."""
         m, n = known.shape
         w, h = passable.shape[1:]
         moves = np.full((m, n), STAY, dtype=np.int64)
+        ties = np.zeros((m, n, len(MOVES)), dtype=bool)
+        ties[..., STAY] = True
         if not has_goal.any():
-            return moves
+            return moves, ties
         mi, ni = np.nonzero(has_goal)
         # the search from a goal only needs to reach the cells next to its vehicle (same map, so the
         # vehicle's distance to its goal bounds it)
@@ -290,14 +300,21 @@ class CoordinatedPolicy:
             choice = np.argmax((d == best) * (ties[:, j] + 1.0), axis=1)
             choice = np.where(act, choice, STAY)
             moves[:, j] = choice
+            ties[act, j] = (d == best)[act]
             dest = positions[:, j] + MOVES[choice]
             known_j = known[:, j]
             reserved[rows[known_j], dest[known_j, 0], dest[known_j, 1]] = True
-        return moves
+        return moves, ties
 
     # --- the decider's part ------------------------------------------------------------------------
     def act(self, beliefs: Beliefs) -> np.ndarray:
         return deciders_part(beliefs, self.plan)
+
+    def labels(self, beliefs: Beliefs) -> tuple[np.ndarray, np.ndarray]:
+        """What `act` gives (B, U), and (B, U, 5) bool: every move as good as it, by the planner's own
+        measure (a teacher's label without its tie-break: swarmctl.learn.search_recipe)."""
+        both = deciders_part(beliefs, self.plan_with_ties)
+        return both[..., 0], both[..., 1:].astype(bool)
 
 
 def _disc_kernel(fov: float) -> np.ndarray:
