@@ -525,7 +525,8 @@ def margin_loss(
 ) -> torch.Tensor:
     """Per sample, the large-margin loss of the labelled move a_E over the other allowed moves, 0 once Q(s, a_E)
     exceeds each of their Q by the margin. A label naming several moves as good (encode_label) asks it of the
-    best of them, Q(s, a_E) = their highest Q, over the moves it does not name. `max` (DQfD's): max_a [Q(s, a) + margin [a != a_E]] - Q(s, a_E);
+    best of them, Q(s, a_E) = their highest Q, over the moves it does not name.
+    `max` (DQfD's): max_a [Q(s, a) + margin [a != a_E]] - Q(s, a_E);
     `sum`: sum over a != a_E of max(0, Q(s, a) + margin - Q(s, a_E)). With the TD losses, on the coordinated
     planner's 20 x 20 demonstrations, the max form left every move's Q equal: its loss stayed at the margin
     through 2,000 pre-training updates (lr 1e-3), and at lr 2.5e-4 the student took the teacher's move in 36 %
