@@ -392,12 +392,12 @@ class MavlinkLink:
             if peer is not None:
                 if header.srcComponent == peer.compid and not peer.lost and peer.heartbeat is not None:
                     self._silent_since_heard(peer, now)
-                if header.srcComponent == peer.compid and not peer.lost and peer.heartbeat is not None:
                     # any frame of its autopilot keeps the link up: with 1 Hz heartbeats alone, a link
                     # losing 20 % gave 3 false losses in a 90 s search of 3 vehicles (tools/lossy_links.py).
                     # A lost one is back only with a heartbeat: its mode and armed state are the heartbeat's,
                     # and the rejoin reads them.
-                    peer.last_heard = now
+                    if not peer.lost:
+                        peer.last_heard = now
                 peer.messages[mtype] = msg
                 peer.received_at[mtype] = now
                 if mtype == "STATUSTEXT":
