@@ -72,6 +72,7 @@ def write_run(path: Path) -> Path:
         "train_samples_per_s": 321.5,
         "teacher_val_success": TEACHER,
         "evals": EVALS,
+        "changes": [{"episode": 4, "option": "demo_share_end", "from": 0.1, "to": 0.5}],
         "final_eval": EVALS[-1],
         "torch": str(torch.__version__),
         "device": "cpu",
@@ -116,14 +117,14 @@ def test_the_card_names_every_stage_its_opening_the_teacher_bars_and_the_tests(r
     notes = tmp_path / "notes.md"
     notes.write_text("## Notes\n\nA closing paragraph.\n")
 
-    card, png = write_card(
-        run, "swarmctl train-search --curriculum tiny", tmp_path / "card.md", results, policy, notes=notes
-    )
+    sessions = "swarmctl train-search --curriculum tiny\nswarmctl train-search --curriculum tiny --resume"
+    card, png = write_card(run, sessions, tmp_path / "card.md", results, policy, notes=notes)
     text = card.read_text()
 
     assert png == tmp_path / "card.png" and png.read_bytes().startswith(PNG_MAGIC)
     assert f"![learning curve]({png.name})" in text and text.endswith("A closing paragraph.\n")
-    assert "    swarmctl train-search --curriculum tiny" in text
+    assert "    swarmctl train-search --curriculum tiny\n    swarmctl train-search --curriculum tiny --resume" in text
+    assert "- on --resume from episode 4: demo_share_end 0.1 -> 0.5" in text
     assert "hover = no, mask = yes, taken = keep" in text and f"recipe `{RECIPE}`" in text
     saved = torch.load(run, map_location="cpu", weights_only=True)
     assert f"weights sha256 {saved['weights_sha256']}" in text

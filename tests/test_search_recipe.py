@@ -248,6 +248,10 @@ def test_a_tiny_run_trains_saves_resumes_and_ends_where_an_unbroken_one_does(tmp
         del saved["world"][key]
     del saved["train"]["teacher_ties"]  # and before the option: its labels were the moves alone
     torch.save(saved, out)
+    # the demonstrations' share may change on --resume; the change is kept for the run's card
+    changed = SearchTrainer(TINY_WORLD, replace(cfg, demo_share_end=0.5), out)
+    changed.resume()
+    assert changed.state.changes == [{"episode": 4, "option": "demo_share_end", "from": 0.1, "to": 0.5}]
     resumed = train(TINY_WORLD, cfg, out, progress=False, resume=True)
     assert counters(resumed) == counters(whole)
     a, b = torch.load(tmp_path / "whole.pt", weights_only=True), torch.load(out, weights_only=True)

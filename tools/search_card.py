@@ -294,10 +294,11 @@ def training(run: Run, command: str) -> list[str]:
         name = run.stages[reached] if 0 <= reached < len(run.stages) else None
         reached_text = f"stage {reached}" + (f" ({printable(name)})" if name else "")
     hyper = ", ".join(f"{k} = {shown(v)}" for k, v in train.items() if k != "recipe")
+    changes = [as_dict(c) for c in as_list(meta.get("changes"))]
     return [
         "## Training",
         "",
-        f"    {command}",
+        *(f"    {printable(line)}" for line in command.splitlines()),
         "",
         f"- episodes: {thousands(meta.get('episodes'))} of {thousands(meta.get('episodes_planned'))} planned "
         f"(student episodes); stage reached: {reached_text}",
@@ -311,6 +312,11 @@ def training(run: Run, command: str) -> list[str]:
         f"- seed {shown(meta.get('seed', train.get('seed')))}, git commit {shown(meta.get('git_commit'))}",
         f"- weights sha256 {shown(run.info.get('weights_sha256'))}",
         "- hyperparameters: " + (hyper or UNKNOWN),
+        *(
+            f"- on --resume from episode {thousands(c.get('episode'))}: {shown(c.get('option'))} "
+            f"{shown(c.get('from'))} -> {shown(c.get('to'))}"
+            for c in changes
+        ),
     ]
 
 
@@ -651,7 +657,9 @@ def write_card(
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("checkpoint", type=Path, help="a checkpoint written by swarmctl train-search")
-    ap.add_argument("--command", required=True, help="the training command line, as run")
+    ap.add_argument(
+        "--command", required=True, action="append", help="the training command line, as run (repeat: each session's)"
+    )
     ap.add_argument("--results", type=Path, help="results/planners/SEED of tools/planner_table.py: the held-out tests")
     ap.add_argument("--policy", help="the policy's name in --results (default: ddql:CHECKPOINT, as given)")
     ap.add_argument("--teacher", default="coordinated", help="the policy it is compared with in --results")
@@ -661,7 +669,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     try:
         card, png = write_card(
-            args.checkpoint, args.command, args.out, args.results, args.policy, args.teacher, args.notes, args.csv
+            args.checkpoint,
+            "\n".join(args.command),
+            args.out,
+            args.results,
+            args.policy,
+            args.teacher,
+            args.notes,
+            args.csv,
         )
     except InputError as exc:
         print(f"search_card: {exc}", file=sys.stderr)

@@ -656,6 +656,7 @@ class Progress:
     evals: list = field(default_factory=list)
     train_seconds: float = 0.0
     wall_seconds: float = 0.0  # of the earlier sessions of a resumed run
+    changes: list = field(default_factory=list)  # schedule options changed on --resume: episode, option, from, to
 
 
 METRICS = [
@@ -679,7 +680,9 @@ METRICS = [
     "samples_per_s",
     "wall_s",
 ]
-RESUME_FREE = ("episodes", "threads", "eval_every", "test_episodes", "keep_resume")  # may change on --resume
+# may change on --resume; the schedule's changes are kept in the checkpoint (Progress.changes) for its card
+SCHEDULE_FREE = ("demo_share_start", "demo_share_end")
+RESUME_FREE = ("episodes", "threads", "eval_every", "test_episodes", "keep_resume", *SCHEDULE_FREE)
 
 
 def tensorboard_writer(folder: Path | None):  # -> torch.utils.tensorboard.SummaryWriter | None
@@ -932,6 +935,7 @@ class SearchTrainer:
             "train_samples_per_s": round(state.samples / max(state.train_seconds, 1e-9), 1),
             "teacher_val_success": state.teacher,
             "evals": state.evals,
+            "changes": state.changes,
             "final_eval": state.evals[-1] if state.evals else None,
             "torch": str(torch.__version__),
             "device": str(self.dev),
@@ -978,6 +982,12 @@ class SearchTrainer:
         self.optimizer.load_state_dict(snapshot["optimizer"])
         torch.set_rng_state(snapshot["torch_rng"])
         self.state = Progress(**snapshot["progress"])
+        for key in SCHEDULE_FREE:
+            before, now = saved.get(key), getattr(self.cfg, key)
+            if before is not None and before != now:
+                change = {"episode": self.state.episodes_done, "option": key, "from": before, "to": now}
+                self.state.changes.append(change)
+                print(f"train-search: {key} {before} -> {now} from episode {change['episode']}", flush=True)
         try:
             arrays = torch.load(replay_path(self.out), map_location="cpu", weights_only=True)
         except (OSError, RuntimeError, EOFError, ValueError):
