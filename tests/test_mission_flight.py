@@ -212,7 +212,7 @@ def test_a_ddql_policy_flies_and_every_step_records_its_q_values(tmp_path):
 def test_a_pilot_taking_over_is_left_alone(tmp_path):
     grid = small_grid()
     with SimSwarm(grid, uavs=3, seed=9, speedup=30.0) as swarm:
-        plan = swarm.plan("frontier", end_action="rtl", time_limit=120.0)
+        plan = swarm.plan("frontier", end_action="rtl", time_limit=120.0, step_timeout=3.0)
         pilot = swarm.mocks[0]
 
         async def take_over(controller):
