@@ -167,3 +167,19 @@ def test_a_checkpoint_lacking_metadata_keys_still_renders(run: Path, tmp_path: P
 
     assert main([str(old), "--command", "x", "--out", str(tmp_path / "card.txt")]) == 2
     assert "give a .md path" in capsys.readouterr().err
+
+
+def test_a_shipped_copy_keeps_the_weights_and_the_counters_and_drops_the_trainer_state(run: Path, tmp_path: Path):
+    from tools.ship_model import main as ship_main
+
+    payload = torch.load(run, weights_only=True)
+    payload["resume"]["optimizer"] = {"state": {}, "param_groups": []}
+    torch.save(payload, run)
+    shipped = tmp_path / "models" / "search.pt"
+    assert ship_main([str(run), str(shipped), "--change", "6", "demo_share_start", "0.5", "0.7"]) == 0
+    copy = torch.load(shipped, weights_only=True)
+    assert copy["weights_sha256"] == payload["weights_sha256"] and list(copy["resume"]) == ["progress"]
+    assert copy["metadata"]["changes"][-1] == {"episode": 6, "option": "demo_share_start", "from": 0.5, "to": 0.7}
+    card, _ = write_card(shipped, "swarmctl train-search", tmp_path / "card.md")
+    assert "- on --resume from episode 6: demo_share_start 0.5 -> 0.7" in card.read_text()
+    assert ship_main([str(run), str(shipped), "--change", "x", "demo_share_start", "0.5", "0.7"]) == 2
