@@ -36,6 +36,7 @@ NETWORKS = [
     "models/obstacles-3uav.pt",
     "models/obstacles-3uav.stage3.pt",
     "models/city.pt",
+    "models/search.pt",  # swarmctl train-search (models/search.md)
 ]
 POLICIES = [
     "coordinated",
