@@ -183,3 +183,4 @@ def test_a_shipped_copy_keeps_the_weights_and_the_counters_and_drops_the_trainer
     card, _ = write_card(shipped, "swarmctl train-search", tmp_path / "card.md")
     assert "- on --resume from episode 6: demo_share_start 0.5 -> 0.7" in card.read_text()
     assert ship_main([str(run), str(shipped), "--change", "x", "demo_share_start", "0.5", "0.7"]) == 2
+    assert ship_main([str(run), str(shipped), "--change", "6", "lr", "0.5", "0.7"]) == 2

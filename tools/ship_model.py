@@ -23,6 +23,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from swarmctl.errors import InputError  # noqa: E402
+from swarmctl.learn.search_recipe import SCHEDULE_FREE  # noqa: E402
 from swarmctl.policy.checkpoint import load_checkpoint  # noqa: E402
 
 MACHINE_PATHS = ("/tmp", "/work", "/home", "runs/")
@@ -50,7 +51,9 @@ def ship(src: Path, dst: Path, changes: list[dict[str, object]] | None = None) -
 
 
 def change(episode: str, option: str, before: str, after: str) -> dict[str, object]:
-    """One --change, its numbers checked."""
+    """One --change, its option and numbers checked."""
+    if option not in SCHEDULE_FREE:
+        raise InputError(f"--change ... {option} ...: OPTION is one of {', '.join(SCHEDULE_FREE)}")
     try:
         return {"episode": int(episode), "option": option, "from": float(before), "to": float(after)}
     except ValueError:
