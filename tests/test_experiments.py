@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from swarmctl.policy.qnet import forward_flops
+from swarmctl.policy.qnet import forward_flops, scales_forward_flops
 from tools import experiments
 from tools.exp import EXPERIMENTS, tasks
-from tools.exp.common import PLANNERS
+from tools.exp.common import PLANNERS, SEARCH_LABEL
 
 pytestmark = pytest.mark.slow  # about 80 s for the seven fast modes
 
@@ -62,6 +62,7 @@ def test_every_table_has_the_planners_and_the_oracle_bound(fast):
     for results in eval_results(fast[2]):
         names = [r["policy"] for r in results]
         assert set(PLANNERS) | {"oracle"} <= set(names)
+        assert (SEARCH_LABEL in names) == (fast[0] != "mavlink")  # search.pt beside every paper experiment
         oracle = results[names.index("oracle")]
         for r in results:
             assert 0.0 <= r["success_rate"] <= 1.0
@@ -88,7 +89,7 @@ def test_the_figures_data_match_the_runs(fast):
     elif name == "obstacles":
         assert [len(q["softmax"]) for q in s["panels"]] == [len(p["train_uavs"])] * len(p["test_uavs"])
     elif name == "bigmaps":
-        assert len(s["table"]) == len(p["maps"]) * len(p["clusters"]) * len(p["etas"]) * (len(p["etas"]) + 5)
+        assert len(s["table"]) == len(p["maps"]) * len(p["clusters"]) * len(p["etas"]) * (len(p["etas"]) + 7)
     elif name == "chicago":
         (results,) = eval_results(record)
         for row in s["table"]:
@@ -97,9 +98,10 @@ def test_the_figures_data_match_the_runs(fast):
         for label, counts in s["failures"].items():
             assert sum(counts.values()) == next(t["failures"] for t in s["table"] if t["policy"] == label)
     elif name == "cost":
-        assert all(r["flops_per_decision"] in (None, forward_flops(20)) for r in s["table"])
+        assert all(r["flops_per_decision"] in (None, forward_flops(20), scales_forward_flops()) for r in s["table"])
+        assert SEARCH_LABEL in {r["policy"] for r in s["table"]}
         assert all(r["ms_per_vehicle_batch1"] > 0 for r in s["table"])
-        assert [t["stages"] for t in s["training"]] == [2, 3, 6] and all(t["wall_min"] > 0 for t in s["training"])
+        assert [t["stages"] for t in s["training"]] == [2, 3, 6, 1] and all(t["wall_min"] > 0 for t in s["training"])
     elif name == "mavlink":
         flown = [r for r in record["runs"].values() if "knowledge_delivered" in r]
         assert flown and all(r["knowledge_delivered"] > 0 for r in flown)  # the agents shared on the bus

@@ -4,8 +4,20 @@ M = 24, 30, 40, 50 with 1-4 clusters of targets, without and with obstacles, 100
 from __future__ import annotations
 
 import matplotlib.pyplot as plt
+import numpy as np
 
-from tools.exp.common import CLUSTER, FAST_TRAIN, PLANNERS, by_policy, eval_run, markdown, rows, save, train_run
+from tools.exp.common import (
+    CLUSTER,
+    FAST_TRAIN,
+    PLANNERS,
+    SEARCH_LABEL,
+    by_policy,
+    eval_run,
+    markdown,
+    rows,
+    save,
+    train_run,
+)
 
 NAME = "bigmaps"
 TITLE = "Big maps: trained at M = 24, tested up to M = 50 with 1-4 clusters"
@@ -91,6 +103,15 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
         ours += f"; at M = {max(p['maps'])}: " + ", ".join(
             f"eta {r['eta']} C {r['clusters']} {r['success']:.2f} vs {la[(r['eta'], r['clusters'], r['map'])]:.2f}"
             for r in big
+        )
+    search = [r for r in table if r["policy"] == SEARCH_LABEL]
+    if search:
+        coordinated = {(r["eta"], r["clusters"], r["map"]): r["success"] for r in table if r["policy"] == "coordinated"}
+        keys = [(r["eta"], r["clusters"], r["map"]) for r in search]
+        ours += (
+            f"; models/search.pt mean success {np.mean([r['success'] for r in search]):.2f} over {len(search)} "
+            f"settings (LA(4) {np.mean([la[k] for k in keys]):.2f}, coordinated "
+            f"{np.mean([coordinated[k] for k in keys]):.2f})"
         )
     return dict(table=table, curves=curves, etas=p["etas"], clusters=p["clusters"], ours=ours)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tools.exp.common import CLUSTER, OBSTACLES, PLANNERS, by_policy, eval_run, markdown, rows, save
+from tools.exp.common import CLUSTER, OBSTACLES, PLANNERS, beside, by_policy, eval_run, markdown, rows, save
 
 NAME = "chicago"
 TITLE = "The Chicago Loop grid, 3 UAVs, 3 targets"
@@ -63,7 +63,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
         ours = (
             f"models/obstacles-3uav.pt {learned['success_rate']:.2f} in {learned['mean_steps']:.0f} steps, "
             f"LA(4) {la['success_rate']:.2f} in {la['mean_steps']:.0f}, "
-            f"frontier {res['frontier']['success_rate']:.2f}, "
+            f"frontier {res['frontier']['success_rate']:.2f}, {beside(res)}, "
             f"oracle {res['oracle']['mean_steps']:.0f} steps"
         )
     return dict(table=table, cdf=cdf, failures=fails, ours=ours)

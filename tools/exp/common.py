@@ -8,7 +8,9 @@ import textwrap
 from tools.exp.runs import Run
 
 CLUSTER, SPARSE, OBSTACLES = "models/cluster-2uav.pt", "models/sparse-2uav.pt", "models/obstacles-3uav.pt"
-PLANNERS = ["la:4", "lawnmower", "frontier"]  # with the oracle bound, beside every learned policy
+SEARCH = "models/search.pt"  # the search recipe's network (models/search.md), beside the paper's in every run
+SEARCH_LABEL = "models/search.pt (search recipe)"
+PLANNERS = ["coordinated", "la:4", "lawnmower", "frontier"]  # with the oracle bound, beside every learned policy
 RECIPE = dict(  # transfer-learning stages of the tools' training (the shipped models' stage-2 recipe)
     parallel_envs=5,
     updates_per_step=0.5,
@@ -22,8 +24,10 @@ RECIPE = dict(  # transfer-learning stages of the tools' training (the shipped m
 
 def eval_run(key: str, world: dict, p: dict, seed: int, learned: dict[str, str], **extra) -> Run:
     """An evaluation run: the `learned` policies ({label: spec with "{input}" names}, inputs named
-    in extra["inputs"]) then the planners and the oracle, on p["test_episodes"] episodes of `seed`."""
-    inputs = extra.pop("inputs", {})
+    in extra["inputs"]), models/search.pt, then the planners and the oracle, on p["test_episodes"]
+    episodes of `seed`."""
+    inputs = {**extra.pop("inputs", {}), "search": SEARCH}
+    learned = {**learned, SEARCH_LABEL: "ddql:{search}"}
     labels = [*learned, *PLANNERS, "oracle"]
     params = dict(
         world=world,
@@ -42,6 +46,14 @@ def train_run(key: str, world: dict, p: dict, seed: int, init: str | None, episo
     cfg = {**RECIPE, **p.get("train", {}), "episodes": episodes, "eval_every": episodes, **train}
     params = dict(world=world, train=cfg, seed=seed, init="{init}" if init else None)
     return Run(key, "train", params, {"init": init} if init else {})
+
+
+def beside(res: dict[str, dict]) -> str:
+    """models/search.pt's and the coordinated planner's success and mean steps, for a claim box."""
+    named = (("search.pt", SEARCH_LABEL), ("coordinated", "coordinated"))
+    return ", ".join(
+        f"{name} {r['success_rate']:.2f} in {r['mean_steps']:.0f}" for name, label in named if (r := res.get(label))
+    )
 
 
 def by_policy(result: dict | None) -> dict[str, dict]:

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import matplotlib.pyplot as plt
 
-from tools.exp.common import CLUSTER, OBSTACLES, SPARSE, markdown, save
+from tools.exp.common import CLUSTER, OBSTACLES, SEARCH, SEARCH_LABEL, SPARSE, markdown, save
 from tools.exp.runs import Run
 
 NAME = "cost"
@@ -16,16 +16,22 @@ POLICIES = {
     "ddql:PATH (our rules)": "ddql:{cluster}",
     "DDQL Soft (the paper's)": "ddql:{cluster}:taken=keep:hover=no:mask=no",
     "ddql-greedy:PATH": "ddql-greedy:{cluster}",
+    SEARCH_LABEL: "ddql:{search}",
     "la:4": "la:4",
     "lawnmower": "lawnmower",
     "frontier": "frontier",
 }
-MODELS = {"models/cluster-2uav.pt": CLUSTER, "models/sparse-2uav.pt": SPARSE, "models/obstacles-3uav.pt": OBSTACLES}
+MODELS = {
+    "models/cluster-2uav.pt": CLUSTER,
+    "models/sparse-2uav.pt": SPARSE,
+    "models/obstacles-3uav.pt": OBSTACLES,
+    SEARCH: SEARCH,
+}
 PRESETS = {"full": dict(seconds=2.0, batches=[1, 256]), "fast": dict(seconds=0.05, batches=[1, 8])}
 
 
 def runs(p: dict, seed: int) -> list:
-    inputs = {"cluster": CLUSTER} | {f"model{i}": path for i, path in enumerate(MODELS.values())}
+    inputs = {"cluster": CLUSTER, "search": SEARCH} | {f"model{i}": path for i, path in enumerate(MODELS.values())}
     params = dict(
         policies=list(POLICIES.values()),
         labels=list(POLICIES),
@@ -38,7 +44,7 @@ def runs(p: dict, seed: int) -> list:
 
 
 def summarise(p: dict, seed: int, results: dict) -> dict:
-    from swarmctl.policy.qnet import forward_flops
+    from swarmctl.policy.qnet import forward_flops, scales_forward_flops
 
     r = results.get("cost")
     if r is None:
@@ -48,11 +54,22 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
     table = []
     for label, times in r["decision"].items():
         row = {"policy": label, "flops_per_decision": flops if label.startswith(("ddql", "DDQL")) else None}
+        if label == SEARCH_LABEL:
+            row["flops_per_decision"] = scales_forward_flops()  # its observation window S = 11
         row |= {f"ms_per_vehicle_batch{b}": times[f"ms_batch{b}"] for b in p["batches"]}
         table.append(row)
     table.append(
         {"policy": "network FLOP limit (matmul rate)", "flops_per_decision": flops, "ms_per_vehicle_batch1": limit_ms}
     )
+    if SEARCH_LABEL in r["decision"]:
+        scales = scales_forward_flops()
+        table.append(
+            {
+                "policy": "search network FLOP limit (matmul rate)",
+                "flops_per_decision": scales,
+                "ms_per_vehicle_batch1": 1000.0 * scales / r["matmul_flop_per_s"],
+            }
+        )
     training = []
     for label, stages in r["training"].items():
         training.append(
@@ -66,10 +83,12 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
             )
         )
     ddql, la = r["decision"]["ddql:PATH (our rules)"]["ms_batch1"], r["decision"]["la:4"]["ms_batch1"]
+    search = r["decision"].get(SEARCH_LABEL, {}).get("ms_batch1")
     load = r["machine"].get("load_average_before")
     ours = (
         f"LA(4) {la:.3f} ms vs DDQL {ddql:.3f} ms per decision at batch 1 ({la / ddql:.2f}x); "
-        f"the network {flops:,} FLOPs, {limit_ms:.3f} ms at the matmul rate measured beside it "
+        + (f"models/search.pt {search:.3f} ms ({search / ddql:.2f}x DDQL); " if search else "")
+        + f"the paper's network {flops:,} FLOPs, {limit_ms:.3f} ms at the matmul rate measured beside it "
         f"({r['matmul_flop_per_s'] / 1e9:.0f} GFLOP/s" + (f", load average {load[0]:.1f})" if load else ")")
     )
     return dict(table=table, training=training, ours=ours, machine=r["machine"])

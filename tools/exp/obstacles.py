@@ -11,6 +11,7 @@ from tools.exp.common import (
     FAST_TRAIN,
     OBSTACLES,
     PLANNERS,
+    SEARCH_LABEL,
     by_policy,
     eval_run,
     markdown,
@@ -70,6 +71,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
                 greedy=[res[f"trained on {u} UAVs, greedy"]["success_rate"] for u in p["train_uavs"]],
                 planners={k: res[k]["success_rate"] for k in PLANNERS},
                 shipped=res["models/obstacles-3uav.pt, softmax"]["success_rate"],
+                search=res[SEARCH_LABEL]["success_rate"],
             )
         )
     ours = "; ".join(
@@ -78,6 +80,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
         + ", greedy "
         + "/".join(f"{v:.2f}" for v in q["greedy"])
         + f" (trained on {'/'.join(map(str, p['train_uavs']))}), LA(4) {q['planners']['la:4']:.2f}"
+        + f", search.pt {q['search']:.2f}, coordinated {q['planners']['coordinated']:.2f}"
         for q in panels
     )
     return dict(panels=panels, table=table, train_uavs=p["train_uavs"], ours=ours or "(no runs done yet)")
@@ -90,9 +93,10 @@ def figure(s: dict, path) -> None:
     for ax, q in zip(axes[0], s["panels"]):
         ax.bar(x - 0.18, q["softmax"], 0.36, label="softmax (ddql:PATH)")
         ax.bar(x + 0.18, q["greedy"], 0.36, label="greedy (ddql-greedy:PATH)")
-        for (name, v), style in zip(q["planners"].items(), ("-", "--", ":")):
+        for (name, v), style in zip(q["planners"].items(), ("-", "--", ":", (0, (1, 4)))):
             ax.axhline(v, color="k", ls=style, lw=1, label=name)
         ax.axhline(q["shipped"], color="tab:red", ls="-.", lw=1, label="models/obstacles-3uav.pt (softmax)")
+        ax.axhline(q["search"], color="tab:green", ls="-", lw=1.5, label=SEARCH_LABEL)
         ax.set_xticks(x, [f"trained on {u}" for u in s["train_uavs"]], fontsize=8)
         ax.set_title(f"tested with {q['test_uavs']} UAVs", fontsize=9)
         ax.set_ylim(0, 1)

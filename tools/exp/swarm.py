@@ -7,7 +7,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tools.exp.common import OBSTACLES, PLANNERS, by_policy, eval_run, markdown, rows, save
+from tools.exp.common import OBSTACLES, PLANNERS, SEARCH_LABEL, by_policy, eval_run, markdown, rows, save
 
 NAME = "swarm"
 TITLE = "10 and 12 UAVs, 16 targets in 4 clusters, channels"
@@ -62,9 +62,11 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
                     bars.setdefault(label, {})[name] = r["success_rate"]
         panels.append(dict(uavs=u, bars=bars))
     la = {(r["uavs"], r["channel"]): r["success"] for r in table if r["policy"] == "la:4"}
+    search = {(r["uavs"], r["channel"]): r["success"] for r in table if r["policy"] == SEARCH_LABEL}
     learned = [r for r in table if r["policy"] == "models/obstacles-3uav.pt"]
     ours = "; ".join(
         f"{r['uavs']} UAVs {r['channel']}: DDQL {r['success']:.2f} vs LA(4) {la[(r['uavs'], r['channel'])]:.2f}"
+        + (f", search.pt {search[(r['uavs'], r['channel'])]:.2f}" if (r["uavs"], r["channel"]) in search else "")
         for r in learned
     )
     return dict(table=table, panels=panels, ours=ours or "(no runs done yet)")

@@ -10,7 +10,18 @@ from __future__ import annotations
 
 import matplotlib.pyplot as plt
 
-from tools.exp.common import CLUSTER, FAST_TRAIN, SPARSE, by_policy, eval_run, markdown, rows, save, train_run
+from tools.exp.common import (
+    CLUSTER,
+    FAST_TRAIN,
+    SPARSE,
+    beside,
+    by_policy,
+    eval_run,
+    markdown,
+    rows,
+    save,
+    train_run,
+)
 
 NAME = "transfer"
 TITLE = "Transfer learning: cluster <-> sparse"
@@ -67,7 +78,10 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
             for row in rows(list(res.values()), direction=f"{src} -> {dst}", uavs=u):
                 cdf = res[row["policy"]]["steps_cdf"]
                 table.append({**row, **{f"done_by_{t}": cdf[t - 1] for t in CDF_AT if t <= len(cdf)}})
-    best = {}
+    best, others = {}, {}
+    for src in SOURCES:
+        for u in p["uavs"]:
+            others[(f"{src} -> {_other(src)}", u)] = beside(by_policy(results.get(f"eval-{src}-to-{_other(src)}-u{u}")))
     for row in table:
         if f"+ {max(p['n_t'])} " in row["policy"]:
             best[(row["direction"], row["uavs"])] = row["success"]
@@ -75,6 +89,7 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
     own = {(r["direction"], r["uavs"]): r["success"] for r in table if "own scenario" in r["policy"]}
     ours = "; ".join(
         f"{d}, {u} UAVs: +{max(p['n_t'])} TL {best[(d, u)]:.2f}, own model {own[(d, u)]:.2f}, LA(4) {la[(d, u)]:.2f}"
+        + (f", {others[(d, u)]}" if others.get((d, u)) else "")
         for (d, u) in best
     )
     return dict(panels=panels, table=table, ours=ours or "(no runs done yet)")
