@@ -68,15 +68,29 @@ def cost_task(params: dict, folder: Path) -> tuple[dict, dict]:
     set_inference_threads(1)
     seconds = params["seconds"]
     load_before = os.getloadavg()
-    rows = {}
+    rows, flops = {}, {}
     for label, spec in zip(params["labels"], params["policies"]):
-        rows[label] = {
-            f"ms_batch{b}": 1000.0 * decision_seconds(make_policy(spec), b, seconds) for b in params["batches"]
-        }
+        policy = make_policy(spec)
+        rows[label] = {f"ms_batch{b}": 1000.0 * decision_seconds(policy, b, seconds) for b in params["batches"]}
+        flops[label] = network_flops(policy)
     training = {label: training_stages(path) for label, path in params.get("checkpoints", {}).items()}
     rate = matmul_flops_per_s(seconds)
     host = {**machine(1), "load_average_before": load_before, "load_average_after": os.getloadavg()}
-    return {"decision": rows, "training": training, "matmul_flop_per_s": rate, "machine": host}, {}
+    result = {"decision": rows, "flops": flops, "training": training, "matmul_flop_per_s": rate, "machine": host}
+    return result, {}
+
+
+def network_flops(policy) -> int | None:
+    """FLOPs of one forward of the policy's network for one observation, counted from the network it
+    loaded (None: a planner, or a network with no count)."""
+    from swarmctl.policy.qnet import QNetwork, ScalesQNetwork, forward_flops, scales_forward_flops
+
+    net = getattr(policy, "net", None)
+    if isinstance(net, ScalesQNetwork):
+        return scales_forward_flops(net.window)
+    if isinstance(net, QNetwork):
+        return forward_flops(net.window)
+    return None
 
 
 def training_stages(path: str) -> list[dict]:

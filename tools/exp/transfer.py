@@ -65,7 +65,7 @@ def runs(p: dict, seed: int) -> list:
 
 
 def summarise(p: dict, seed: int, results: dict) -> dict:
-    panels, table = [], []
+    panels, table, others = [], [], {}
     for src in SOURCES:
         dst = _other(src)
         for u in p["uavs"]:
@@ -75,13 +75,11 @@ def summarise(p: dict, seed: int, results: dict) -> dict:
             panels.append(
                 dict(src=src, dst=dst, uavs=u, cdf={k: r["steps_cdf"] for k, r in res.items() if k != "oracle"})
             )
+            others[(f"{src} -> {dst}", u)] = beside(res)
             for row in rows(list(res.values()), direction=f"{src} -> {dst}", uavs=u):
                 cdf = res[row["policy"]]["steps_cdf"]
                 table.append({**row, **{f"done_by_{t}": cdf[t - 1] for t in CDF_AT if t <= len(cdf)}})
-    best, others = {}, {}
-    for src in SOURCES:
-        for u in p["uavs"]:
-            others[(f"{src} -> {_other(src)}", u)] = beside(by_policy(results.get(f"eval-{src}-to-{_other(src)}-u{u}")))
+    best = {}
     for row in table:
         if f"+ {max(p['n_t'])} " in row["policy"]:
             best[(row["direction"], row["uavs"])] = row["success"]
