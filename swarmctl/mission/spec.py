@@ -310,7 +310,8 @@ class MissionTable(Table):
     )
     policy: str = setting(
         ...,
-        "ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random (PATH: from the mission file), "
+        "coordinated[:hover=first|defer], ddql:PATH[:options], ddql-greedy:PATH, la:N, frontier, lawnmower, random "
+        "(PATH: from the mission file), "
         "or a search pattern from lkp: pattern:expanding-square, pattern:sector or pattern:parallel",
         min_length=1,
         example="frontier",
