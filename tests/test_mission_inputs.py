@@ -19,7 +19,7 @@ from swarmctl.world.moves import MOVES
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "obstacles-3uav.pt"
 POLICIES = ["frontier", "la:2", "lawnmower", "random", f"ddql:{MODEL}:straggler=frontier", f"ddql-greedy:{MODEL}"]
-FIELDS = ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me", "episodes")
+FIELDS = ("explored", "phi_hat", "obstacles", "targets", "positions", "hovering", "me", "episodes", "heard")
 
 
 class _World:
@@ -121,3 +121,16 @@ def test_a_change_whose_base_line_is_missing_is_refused():
     with pytest.raises(InputsError, match="step 2, whose line was not read"):  # round 2 was skipped
         decoder.beliefs(lines[2], [0, 1], policy.settings)
     decoder.beliefs(lines[3], [0, 1], policy.settings)  # round 4 = 1 + 3: every map whole
+
+
+def test_a_line_written_before_heard_existed_reads_as_every_position_current():
+    """Older recordings have no `heard`: their beliefs read back without it, as their policy had them."""
+    policy = FieldPolicy("coordinated")
+    encoder, decoder = InputsEncoder(1), InputsDecoder(8, 8, 3)
+    for step, deciders, knowledges in _rounds(2, 3, 8, 8, 3):
+        line = encoder.line(step, [f"v{i}" for i in deciders], policy.beliefs(knowledges, step - 1, 3), [])
+        assert "heard" in line
+        del line["heard"]
+        assert check_event({"t": 0.0, "event": "inputs", **line}, strict=True) == "inputs"
+        beliefs = decoder.beliefs(line, deciders, policy.settings)
+        assert beliefs.heard is None and not beliefs.out_of_touch(0).any()

@@ -66,14 +66,15 @@ def played(channel: str, seed: int, steps: int) -> SearchEnv:
 
 def knowledge_of(env: SearchEnv, b: int, v: int) -> Knowledge:
     """What the controller's agent v would hold had it lived episode b: its explored cells with their
-    phi and obstacles, the positions (and hover flags) it has received."""
+    phi and obstacles, the positions (and hover flags) it has received, each with the step it came at."""
     k = Knowledge(env.width, env.height, vehicle_id=v)
     x, y = np.nonzero(env.explored[b, v])
     k.sense(np.stack([x, y], 1), env.phi[b, x, y], env.obstacles[b, x, y])
     for u in range(env.uavs):
         cell = env.known_pos[b, v, u]
         if cell[0] >= 0:
-            k.merge_position(u, Position(env.t, (int(cell[0]), int(cell[1])), bool(env.known_hover[b, v, u])))
+            heard = int(env.heard[b, v, u])  # the step of the report v last received from u
+            k.merge_position(u, Position(heard, (int(cell[0]), int(cell[1])), bool(env.known_hover[b, v, u])))
     k.add_targets(np.argwhere(env.explored[b, v] & env.target_mask[b]), env.t)
     return k
 
@@ -151,6 +152,7 @@ def test_beliefs_hold_no_truth():
         "episodes",
         "step",
         "step_limit",
+        "heard",
     }
     b = played("ideal", 3, 2).beliefs()
     derived = {k for k, v in vars(Beliefs).items() if isinstance(v, cached_property)}  # views of the fields

@@ -26,18 +26,21 @@ MAX_SIDE = 1 << 12  # cells per side a position key holds
 _XY = 0xFFF
 
 
+STEP_SHIFT = 25  # a position key's step is key >> STEP_SHIFT
+
+
 def position_key(step: int, cell: tuple[int, int], on_target: bool) -> int:
     """An int64 that orders like Position.order(): step (< 2^38), then x, then y (< 4096), then
     on_target."""
     if not 0 <= int(step) < 1 << 38:
         raise ValueError(f"step {step} must be 0..2^38 - 1")
-    return (int(step) << 25) | (int(cell[0]) << 13) | (int(cell[1]) << 1) | int(bool(on_target))
+    return (int(step) << STEP_SHIFT) | (int(cell[0]) << 13) | (int(cell[1]) << 1) | int(bool(on_target))
 
 
 def split_key(key: int) -> tuple[int, tuple[int, int], bool]:
     """The (step, cell, on_target) of a position key."""
     key = int(key)
-    return key >> 25, ((key >> 13) & _XY, (key >> 1) & _XY), bool(key & 1)
+    return key >> STEP_SHIFT, ((key >> 13) & _XY, (key >> 1) & _XY), bool(key & 1)
 
 
 def key_cells(keys: np.ndarray) -> np.ndarray:

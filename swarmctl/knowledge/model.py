@@ -23,14 +23,23 @@ Merge semantics (a join semilattice, so merging is idempotent, commutative and a
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator, Mapping, MutableMapping
+from collections.abc import Collection, Iterator, Mapping, MutableMapping
 from dataclasses import dataclass, field
 from typing import Any, Self, TypeGuard
 
 import numpy as np
 import numpy.typing as npt
 
-from swarmctl.knowledge.arrays import MAX_IDS, NEVER, UNKNOWN, StackArrays, key_cells, position_key, split_key
+from swarmctl.knowledge.arrays import (
+    MAX_IDS,
+    NEVER,
+    STEP_SHIFT,
+    UNKNOWN,
+    StackArrays,
+    key_cells,
+    position_key,
+    split_key,
+)
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 from swarmctl.world.observe import observe
 from swarmctl.world.scenario import fov_offsets, value_map
@@ -345,6 +354,17 @@ class Knowledge:
         """Known positions of the other vehicles."""
         return {v: p for v, p in self.positions.items() if v != self.vehicle_id}
 
+    def out_of_touch(self, step: int, vehicles: int, steps: int, in_touch: Collection[int] = ()) -> int:
+        """How many of the other `vehicles` (ids 0..vehicles-1) this vehicle has no report from of step
+        `step - steps` or later, one never heard from counting as heard at step 0 and the ids `in_touch`
+        as heard now (as Beliefs.out_of_touch reads the beliefs beliefs_from_knowledge makes)."""
+        heard = np.zeros(vehicles, dtype=np.int64)
+        keys = self._position[:vehicles]
+        heard[: keys.size] = np.maximum(keys, 0) >> STEP_SHIFT
+        silent = heard < step - steps
+        silent[[v for v in {self.vehicle_id, *in_touch} if 0 <= v < vehicles]] = False
+        return int(silent.sum())
+
     def known_targets(self) -> np.ndarray:
         """(W, H) bool: cells known to hold a target (reported by a detection, or sensed with phi 1)."""
         known: np.ndarray = (self.explored & (self.phi_q == PHI_LEVELS)) | (self._target_step != NEVER)
@@ -383,7 +403,7 @@ class Knowledge:
         if not (0 <= int(cell[0]) < self.width and 0 <= int(cell[1]) < self.height):
             raise ValueError(f"cells outside the {self.width} x {self.height} grid")
         old = self._position[self.vehicle_id]
-        if old < 0 or int(step) >= int(old) >> 25:  # the stored step (stack.position_key)
+        if old < 0 or int(step) >= int(old) >> STEP_SHIFT:  # the stored step (stack.position_key)
             self._position[self.vehicle_id] = position_key(step, cell, on_target)
 
     def sense(self, cells: npt.ArrayLike, phi: npt.ArrayLike, obstacle: npt.ArrayLike) -> int:
@@ -530,6 +550,7 @@ def beliefs_from_knowledge(
     step: int = 0,
     hovering: list[bool] | None = None,
     episode: int = 0,
+    in_touch: Collection[int] = (),
 ) -> Beliefs:
     """The Beliefs of the agents whose Knowledge is given (one batch, one decider each), as the
     simulator's SearchEnv.beliefs builds them from its arrays.
@@ -543,7 +564,9 @@ def beliefs_from_knowledge(
     vehicles: the swarm's size N (default: enough for every vehicle id the knowledges name);
     settings: the observation settings (default the paper's, with the quantised phi's tolerance);
     hovering: whether each agent itself hovers on a target (default: none do: they are searching);
-    episode: the id that keys the policy's random draws with the step (a mission is episode 0).
+    episode: the id that keys the policy's random draws with the step (a mission is episode 0);
+    in_touch: the vehicle ids heard now whatever their reports say (`heard`: the controller's own
+    vehicles on their links, taking off included).
     Each agent must know its own cell. When every agent knows the same maps (ideal sharing), the
     grid-sized fields are built once and are read-only broadcast views over the agents."""
     if not knowledges:
@@ -569,6 +592,9 @@ def beliefs_from_knowledge(
         keys = np.concatenate([keys, np.full((a, n - keys.shape[1]), UNKNOWN, dtype=np.int64)], axis=1)
     keys = keys[:, :n]
     positions = key_cells(keys)[None]
+    heard = np.where(keys >= 0, keys >> STEP_SHIFT, -1)  # the step of each vehicle's newest report
+    heard[:, [v for v in in_touch if 0 <= v < n]] = step  # vehicles the caller hears otherwise (their links)
+    heard = heard[None]
     hover = (keys >= 0) & (keys & 1).astype(bool)
     hover[np.arange(a), me] = np.asarray(hovering, dtype=bool) if hovering is not None else False
     hover = hover[None]
@@ -598,6 +624,7 @@ def beliefs_from_knowledge(
         np.array([episode], dtype=np.int64),
         int(step),
         settings,
+        heard=heard,
     )
 
 

@@ -28,6 +28,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from swarmctl.knowledge.arrays import STEP_SHIFT
 from swarmctl.knowledge.exchange import KnowledgeExchange
 from swarmctl.knowledge.model import Delta, quantise_phi
 from swarmctl.knowledge.stack import position_key, split_key
@@ -103,9 +104,9 @@ def _step_arrays(
         raise ValueError(f"cells outside the {w} x {h} grid")
     # the own positions (Knowledge.set_position: the same step or newer replaces the stored one)
     position_key(step, (0, 0), False)  # checks the step's range
-    keys = (step << 25) | (xy[:, 0] << 13) | (xy[:, 1] << 1) | np.asarray(on_target, dtype=np.int64)
+    keys = (step << STEP_SHIFT) | (xy[:, 0] << 13) | (xy[:, 1] << 1) | np.asarray(on_target, dtype=np.int64)
     old = stack.position[rows, vids]
-    newer = (old < 0) | (step >= old >> 25)
+    newer = (old < 0) | (step >= old >> STEP_SHIFT)
     stack.position[rows[newer], vids[newer]] = keys[newer]
     # what each senses (Knowledge.sense), all rows in one go
     parts = [(i, s) for i, s in enumerate(sensed) if s is not None and len(s[0])]

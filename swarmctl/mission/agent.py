@@ -58,6 +58,8 @@ class State(StrEnum):
 
 
 _ACTIVE = {State.CONNECT, State.PREFLIGHT, State.TAKEOFF, State.SEARCH, State.HOVER, State.REJOIN}
+# the states in which a vehicle is on its way to the search or in it: the hover rule counts it in touch
+IN_TOUCH = frozenset(_ACTIVE)
 TRANSITIONS: dict[State, frozenset[State]] = {
     State.NEW: frozenset({State.CONNECT}),
     State.CONNECT: frozenset({State.PREFLIGHT}),

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -141,18 +142,25 @@ class FieldPolicy:
         """Whether the policy weighs cells by the prior (planners) or ignores it (ddql)."""
         return not isinstance(self.policy, DDQLPolicy)
 
-    def parks(self, known_targets: int, vehicles: int) -> bool:
+    def parks(self, known_targets: int, vehicles: int, out_of_touch: int = 0) -> bool:
         """Whether an agent on a free target it knows parks there now (HOVER), the swarm of `vehicles`
-        knowing `known_targets` targets: the hover rule (`defer` unless the spec names another)."""
-        return bool(parking(self.hover, known_targets, vehicles, self.hold))
+        knowing `known_targets` targets, `out_of_touch` of its teammates not heard from lately
+        (Knowledge.out_of_touch): the hover rule (`defer` unless the spec names another)."""
+        return bool(parking(self.hover, known_targets, vehicles, self.hold, out_of_touch))
 
     def beliefs(
-        self, knowledges: list[Knowledge], step: int = 0, vehicles: int | None = None, targets_done: bool = False
+        self,
+        knowledges: list[Knowledge],
+        step: int = 0,
+        vehicles: int | None = None,
+        targets_done: bool = False,
+        in_touch: Collection[int] = (),
     ) -> Beliefs:
         """The Beliefs of the searching agents whose Knowledge is given, at mission step `step`, in a swarm
         of `vehicles` (default: as many as the knowledges name), observed with this policy's settings;
-        with `targets_done` (on_find = "mark") the known targets are left out (`without_targets`)."""
-        beliefs = beliefs_from_knowledge(knowledges, vehicles, self.settings, step)
+        with `targets_done` (on_find = "mark") the known targets are left out (`without_targets`);
+        `in_touch`: the vehicles heard now whatever their reports say (beliefs_from_knowledge)."""
+        beliefs = beliefs_from_knowledge(knowledges, vehicles, self.settings, step, in_touch=in_touch)
         if targets_done:
             beliefs = without_targets(beliefs)
         return with_density(beliefs, self.search) if self.search is not None and self.uses_prior else beliefs
@@ -220,6 +228,7 @@ def with_density(beliefs: Beliefs, search: SearchProbability) -> Beliefs:
         density=np.broadcast_to(density, shape),
         passes=np.broadcast_to(passes, shape),
         pod=search.pod,
+        heard=beliefs.heard,
     )
 
 
@@ -256,4 +265,5 @@ def without_targets(beliefs: Beliefs, cells: set[tuple[int, int]] | None = None)
         step_limit=beliefs.step_limit,
         density=lambda: beliefs.density,  # the search's density, when the beliefs carry one
         pod=beliefs.pod,
+        heard=beliefs.heard,
     )

@@ -509,6 +509,15 @@ EVENTS: dict[str, tuple[str, str, tuple[Field, ...]]] = {
                 "base64 of zlib of int16 little-endian (vehicles x N x 3): where each of them believes each of "
                 "the N vehicles is (x, y; -1, -1: unknown) and whether it hovers on a target (1)",
             ),
+            Field(
+                "heard",
+                "str",
+                "steps",
+                "base64 of zlib of int16 little-endian (vehicles x N): how many steps before the policy's step "
+                "each of them last heard each of the N vehicles (negative: a report stamped later; -32768: never; "
+                "clipped to +-32767); absent: all current",
+                required=False,
+            ),
             Field("held", "records inputs held", "-", "the guard's other vehicles, in the guard's order"),
         ),
     ),

@@ -23,7 +23,10 @@ little-endian); deciders with the same delta share one entry of `maps` (with ide
 decider knows the same map, so a round stores it once). Positions: base64 of zlib of int16
 little-endian (A, N, 3), for each of the A deciders and N vehicles the cell x, y where the decider
 believes the vehicle is (-1, -1: unknown; its own row is its own cell) and 1 when it believes the
-vehicle hovers on a target.
+vehicle hovers on a target. Heard (optional; lines written before it decided as if every position
+were current): base64 of zlib of int16 little-endian (A, N), how many steps before the policy's step
+the decider last heard each vehicle (negative: a report stamped later than that step, as a vehicle's
+own position is; -32768: never; clipped to +-32767), which the hover rule reads.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from swarmctl.knowledge.model import PHI_LEVELS, dequantise_phi
 from swarmctl.world.beliefs import Beliefs, ObservationSettings
 
 KEY_EVERY = 50  # rounds between the lines that carry every decider's whole map
+MAX_AGE, NEVER_HEARD = 32767, -32768  # the ages of news a line records, in steps (int16), and "never"
 EXPLORED, OBSTACLE, TARGET = np.uint16(1 << 8), np.uint16(1 << 9), np.uint16(1 << 10)
 PHI_BITS = np.uint16(0xFF)
 
@@ -134,7 +138,7 @@ class InputsEncoder:
                     index.append(found[blob])
             self._last[v] = (int(step), values[u])
         table = np.concatenate([beliefs.positions[0], beliefs.hovering[0][..., None]], axis=-1)
-        return dict(
+        line = dict(
             step=int(step),
             vehicles=list(names),
             since=since,
@@ -143,6 +147,11 @@ class InputsEncoder:
             positions=_b64(table.astype("<i2").tobytes()),
             held=[dict(index=int(i), cell=[int(c[0]), int(c[1])]) for i, c in held],
         )
+        if beliefs.heard is not None:
+            heard = beliefs.heard[0]
+            ages = np.where(heard >= 0, np.clip(beliefs.step - heard, -MAX_AGE, MAX_AGE), NEVER_HEARD)
+            line["heard"] = _b64(ages.astype("<i2").tobytes())
+        return line
 
 
 class InputsDecoder:
@@ -197,6 +206,14 @@ class InputsDecoder:
         if len(raw) != a * self.vehicles * 3 * 2:
             raise InputsError(f"positions hold {len(raw)} bytes, not {a} x {self.vehicles} x 3 int16")
         table = np.frombuffer(raw, dtype="<i2").reshape(a, self.vehicles, 3).astype(np.int64)
+        step = int(line["step"]) - 1
+        heard = None
+        if line.get("heard") is not None:
+            raw = inflate(line["heard"], a * self.vehicles * 2, "heard")
+            if len(raw) != a * self.vehicles * 2:
+                raise InputsError(f"heard holds {len(raw)} bytes, not {a} x {self.vehicles} int16")
+            ages = np.frombuffer(raw, dtype="<i2").reshape(a, self.vehicles).astype(np.int64)
+            heard = np.where(ages != NEVER_HEARD, np.maximum(step - ages, -1), -1)[None]
         for u, v in enumerate(me):
             self._last[v] = (int(line["step"]), values[u])
         explored = (values & EXPLORED) != 0
@@ -211,8 +228,9 @@ class InputsDecoder:
                 (table[None, ..., 2] != 0),
                 np.array([me], dtype=np.int64),
                 np.zeros(1, dtype=np.int64),
-                int(line["step"]) - 1,
+                step,
                 settings,
+                heard=heard,
             )
         except ValueError as exc:
             raise InputsError(str(exc)) from None

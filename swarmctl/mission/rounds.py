@@ -38,10 +38,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from swarmctl.knowledge.stepping import poll_all
-from swarmctl.mission.agent import Agent, State
+from swarmctl.mission.agent import IN_TOUCH, Agent, State
 from swarmctl.mission.decide import without_targets
 from swarmctl.mission.state import quietly
-from swarmctl.policy.hover import NO
+from swarmctl.policy.hover import NO, OUT_OF_TOUCH_STEPS
 from swarmctl.world.moves import MOVE_NAMES, MOVES
 
 if TYPE_CHECKING:
@@ -200,7 +200,7 @@ class Rounds:
                 and a.cell is not None
                 and a.cell in a.knowledge.targets
                 and a.cell not in rejected
-                and self.policy.parks(known, self.crew.vehicles)  # the hover rule
+                and self.policy.parks(known, self.crew.vehicles, self.out_of_touch(a))  # the hover rule
             ):
                 hovering = {b.cell for b in self.crew.agents if b is not a and b.state is State.HOVER}
                 hovering |= {p.cell for v, p in a.knowledge.peers.items() if p.on_target and not self.crew.ours(v)}
@@ -209,6 +209,16 @@ class Rounds:
                     a.exchange.step(self.state.step, a.cell, True)  # tell the others this target is taken
         if self.policy.hover == NO and self.finish.classic and not self.finish.marks:
             self.hold_once_all_on_targets()
+
+    def in_touch(self) -> set[int]:
+        """This process's vehicles on their way to the search or in it: heard on their own links, whatever
+        their last knowledge report (one taking off has sent none)."""
+        return {a.index for a in self.crew.agents if a.state in IN_TOUCH}
+
+    def out_of_touch(self, a: Agent) -> int:
+        """The teammates `a` has had no report from in the hover rule's last OUT_OF_TOUCH_STEPS rounds
+        (as the policy's beliefs count them: swarmctl.policy.hover)."""
+        return a.knowledge.out_of_touch(self.state.step, self.crew.vehicles, OUT_OF_TOUCH_STEPS, self.in_touch())
 
     def hold_once_all_on_targets(self) -> None:
         """Under the hover rule `no` nobody parks on the way: staying on a target is the policy's own
@@ -239,7 +249,9 @@ class Rounds:
         n = self.crew.vehicles
         knowledges = [a.knowledge for a in searching]
         beliefs = (
-            self.policy.beliefs(knowledges, self.state.step, n, targets_done=self.finish.marks) if searching else None
+            self.policy.beliefs(knowledges, self.state.step, n, self.finish.marks, self.in_touch())
+            if searching
+            else None
         )
         if beliefs is not None and self.state.rejected:  # the finds the operator rejected are no targets
             beliefs = without_targets(beliefs, self.state.rejected)

@@ -35,7 +35,7 @@ from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
 from swarmctl.policy.draws import CLAIMS, NAVIGATE, uniform
-from swarmctl.policy.hover import DEFER, FIRST, NO, park_allowed
+from swarmctl.policy.hover import DEFER, NO, swarm_parking
 from swarmctl.policy.planners import CHUNK_CELLS, deciders_part, distances_from, target_lists
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
@@ -123,7 +123,7 @@ class CoordinatedPolicy:
         on_target = beliefs.hovering[hb, hu] & known
         targets = beliefs.targets[hb, hu]
         obstacles = beliefs.obstacles[hb, hu]
-        park = self._parking(targets, n)
+        park = swarm_parking(beliefs, self.hover, self.hold, (hb, hu))  # (M,) the hover rule
         parked = on_target & park[:, None]
         searching = known & ~parked
         parked_cells = np.zeros((m, w, h), dtype=bool)
@@ -148,15 +148,6 @@ class CoordinatedPolicy:
         moves = np.where(parked, STAY, moves)
         ties[parked] = np.arange(len(MOVES)) == STAY
         return np.concatenate([moves[..., None], ties.astype(np.int64)], axis=-1)
-
-    def _parking(self, targets: np.ndarray, vehicles: int) -> np.ndarray:
-        """(M,) whether the holders' swarm parks on targets now (the hover rule; the step limit is
-        applied with the assignment)."""
-        if self.hover == FIRST:
-            return np.ones(len(targets), dtype=bool)
-        if self.hover == NO:
-            return np.zeros(len(targets), dtype=bool)
-        return park_allowed(targets.sum((1, 2)), vehicles, self.hold)
 
     def _assign_targets(
         self,

@@ -21,7 +21,7 @@ from collections.abc import Callable
 import numpy as np
 
 from swarmctl.policy.draws import CLAIMS, NAVIGATE, RANDOM, Draws, uniform
-from swarmctl.policy.hover import FIRST, NO, parking, parks
+from swarmctl.policy.hover import FIRST, NO, parks, swarm_parking
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.paths import UNREACHABLE, grid_distances, step_towards
@@ -178,7 +178,7 @@ class _SwarmPlanner:
         """Every vehicle's goal (M, N, 2) as the deciders (hb, hu) see the swarm."""
         draws = Draws(self.seed, beliefs)
         positions = beliefs.positions[hb, hu]
-        park = parking(self.hover, beliefs.targets[hb, hu].sum((1, 2)), beliefs.vehicles, self.hold)  # (M,)
+        park = swarm_parking(beliefs, self.hover, self.hold, (hb, hu))  # (M,)
         parked = beliefs.hovering[hb, hu] & park[:, None]
         active = beliefs.others[hb, hu] & ~parked
         active[np.arange(len(hb)), beliefs.me[hb, hu]] = ~(beliefs.hovering_self[hb, hu] & park)

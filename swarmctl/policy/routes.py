@@ -27,7 +27,7 @@ import numpy.typing as npt
 
 from swarmctl.policy.coordinated import CoordinatedPolicy
 from swarmctl.policy.draws import NAVIGATE, Draws
-from swarmctl.policy.hover import DEFER, parking, parks
+from swarmctl.policy.hover import DEFER, parks, swarm_parking
 from swarmctl.world.beliefs import Beliefs
 from swarmctl.world.moves import MOVES, STAY
 from swarmctl.world.paths import UNREACHABLE, grid_distances
@@ -103,7 +103,7 @@ class RoutePolicy:
         goals, following = self.goals(beliefs, passable)
         targets = beliefs.targets
         free_targets = (targets & ~beliefs.hover_cells).any((2, 3))
-        to_targets = parking(self.hover, targets.sum((2, 3)), beliefs.vehicles, self.hold) & free_targets
+        to_targets = swarm_parking(beliefs, self.hover, self.hold) & free_targets
         following &= ~to_targets
         parked = parks(beliefs, self.hover, self.hold)
         following &= ~parked

@@ -89,7 +89,10 @@ class Beliefs:
     (swarmctl.world.prior.density); when not given, 1 where unexplored and 0 where explored (a uniform
     prior searched with a detector that never misses). passes (B, U, W, H) uint8, the passes the decider
     knows of, with the detector's `pod`: what `uniform_density` reads (when not given, explored cells
-    count one pass)."""
+    count one pass). heard (B, U, N) int64: the step at which the decider last heard each vehicle's
+    position (its own: now; -1: never), when the beliefs come over a lossy channel; None: every known
+    position is current (ideal sharing). The hover rule reads it (`out_of_touch`); the controller marks
+    the vehicles it flies itself and still hears over their links (taking off included) as heard now."""
 
     FIELDS = (
         "explored",
@@ -102,6 +105,7 @@ class Beliefs:
         "episodes",
         "step",
         "step_limit",
+        "heard",
     )
     _MAPS = {
         "phi_hat": np.float32,
@@ -129,6 +133,7 @@ class Beliefs:
         density: MapSource = None,
         passes: MapSource = None,
         pod: float = 1.0,
+        heard: npt.ArrayLike | None = None,
     ):
         self.explored = np.asarray(explored, dtype=bool)
         b, u, w, h = self.explored.shape
@@ -164,6 +169,9 @@ class Beliefs:
         ):
             if arr.shape != shape:
                 raise ValueError(f"beliefs: {name} has shape {arr.shape}, expected {shape}")
+        self.heard = None if heard is None else np.asarray(heard, dtype=np.int64)
+        if self.heard is not None and self.heard.shape != (b, u, n):
+            raise ValueError(f"beliefs: heard has shape {self.heard.shape}, expected {(b, u, n)}")
         if n < 1 or (self.me.size and (self.me.min() < 0 or self.me.max() >= n)):
             raise ValueError(f"beliefs: a decider's own index is outside the {n} vehicles")
         if self.positions.size:
@@ -294,6 +302,17 @@ class Beliefs:
             known = [(x, y, hv) for i, ((x, y), hv) in enumerate(zip(row, hover)) if i != me and x >= 0]
             crews.append((tuple(row[me]), hover[me], known))
         return crews
+
+    def out_of_touch(self, steps: int) -> np.ndarray:
+        """(B, U) int: the other vehicles the decider has not heard from in the last `steps` steps, one
+        never heard from counting as heard at step 0 (the swarm sets out together); all zero without
+        `heard` (ideal sharing)."""
+        if self.heard is None:
+            return np.zeros(self.me.shape, dtype=np.int64)
+        others = np.arange(self.vehicles)[None, None, :] != self.me[..., None]
+        silent = np.maximum(self.heard, 0) < self.step - steps
+        result: np.ndarray = (silent & others).sum(-1)
+        return result
 
     @cached_property
     def hovering_self(self) -> np.ndarray:
@@ -443,4 +462,5 @@ class Beliefs:
             part("density"),
             part("passes"),
             self.pod,
+            None if self.heard is None else self.heard[idx],
         )

@@ -27,10 +27,11 @@ value map a vehicle sees is made from the targets it knows. `team_pos()` is 1 - 
 the team's passes; `pos_trace` holds it after every step, `pos_step` the step it first reached pos_goal.
 
 Each vehicle has its own knowledge (explored mask, where it believes the others are and whether they
-hover on a target). After every move each vehicle senses the disc of radius zeta around itself and
-broadcasts what it sensed, its position and whether it hovers; the channel decides which receivers
-get it (ideal: all, none: nobody, model/fixed: each message lost independently, by a draw keyed by
-(seed, episode, step, sender, receiver), so the batch never changes which messages are lost). Policies
+hover on a target, and the step it last heard each of them: `heard`). After every move each vehicle
+senses the disc of radius zeta around itself and broadcasts what it sensed, its position and whether
+it hovers; the channel decides which receivers get it (ideal: all, none: nobody, model/fixed: each
+message lost independently, by a draw keyed by (seed, episode, step, sender, receiver), so the batch
+never changes which messages are lost). Policies
 see only `beliefs()` (swarmctl.world.beliefs), never the hidden targets; `observe()` is the paper's
 observation built from them. With `cfg.guard` the safety guard (swarmctl.world.guard) turns refused moves into
 "stay" before they are applied, as the controller does.
@@ -156,6 +157,7 @@ class SearchEnv:
         self.explored = np.zeros((b, self.uavs, self.width, self.height), dtype=bool)
         self.known_pos = np.full((b, self.uavs, self.uavs, 2), -1, dtype=np.int64)
         self.known_hover = np.zeros((b, self.uavs, self.uavs), dtype=bool)  # [b, v, u]: v believes u hovers
+        self.heard = np.full((b, self.uavs, self.uavs), -1, dtype=np.int64)  # [b, v, u]: the step v last heard u
         self._lower = np.tri(self.uavs, k=-1, dtype=bool)[None]  # [u, v]: v < u
         self._hover = self._hovering()
         self._decider_ids = np.broadcast_to(np.arange(self.uavs), (b, self.uavs))
@@ -396,6 +398,7 @@ class SearchEnv:
             # new arrays, as below: beliefs handed out earlier keep what they were given
             self.known_pos = np.repeat(self.pos[:, None, :, :], u, axis=1)
             self.known_hover = np.repeat(self._hover[:, None, :], u, axis=1)
+            self.heard.fill(self.t)
             return
         if kind == "none":
             explored[self._bi[:, :, None], np.arange(u)[None, :, None], disc] = True
@@ -406,6 +409,7 @@ class SearchEnv:
             explored |= (delivered.astype(np.float32) @ sensed.astype(np.float32)) > 0
         self.known_pos = np.where(delivered[..., None], self.pos[:, None, :, :], self.known_pos)
         self.known_hover = np.where(delivered, self._hover[:, None, :], self.known_hover)
+        self.heard = np.where(delivered, self.t, self.heard)
 
     def _share_search(self, own: np.ndarray, found: np.ndarray, delivered: np.ndarray | None) -> np.ndarray:
         """pod < 1: each vehicle's passes and detections now (own (B, U, W*H), found (B, U, K)) reach the
@@ -498,6 +502,7 @@ class SearchEnv:
             density=density,
             passes=passes,
             pod=self.cfg.pod,
+            heard=self.heard[rows],
         )
 
     def _known_maps(
