@@ -15,12 +15,14 @@ from swarmctl.knowledge.model import Knowledge, Position
 from swarmctl.mavlink.codec import ne_m
 from swarmctl.mission.agent import Agent, State
 from swarmctl.mission.crew import Crew
+from swarmctl.mission.decide import FieldPolicy
 from swarmctl.mission.ending import Ending
 from swarmctl.mission.launch import Launch
 from swarmctl.mission.rounds import Rounds
 from swarmctl.mission.spec import BatteryTable, VehicleSpec
 from swarmctl.mission.state import MissionState
 from swarmctl.mission.watch import NOT_COMMANDED, Watch
+from swarmctl.policy.hover import OUT_OF_TOUCH_STEPS
 from tests.mavlink_support import run
 from tests.mission_support import small_grid
 
@@ -235,7 +237,7 @@ def rounds(
     state = MissionState()
     state.search_started = time.monotonic()
     finish = SimpleNamespace(classic=classic, marks=False, check=lambda: None)
-    policy = SimpleNamespace(parks=lambda known, vehicles: parks, hover=hover)
+    policy = SimpleNamespace(parks=lambda known, vehicles, out_of_touch=0: parks, hover=hover)
     timing = SimpleNamespace(time_limit=time_limit)
     battery = BatteryTable(return_below=20)
     return Rounds(timing, battery, policy, None, swarm.rec, state, swarm, None, None, None, finish)
@@ -267,6 +269,23 @@ def test_a_vehicle_on_a_known_target_parks_when_the_hover_rule_lets_it_and_nobod
     assert a.state is State.SEARCH  # the rule defers the hover
     rounds(crew(a, b), parks=True).update_states()
     assert a.state is State.HOVER and b.state is State.SEARCH
+
+
+@pytest.mark.parametrize("c_state", [State.FAILED, State.TAKEOFF])
+def test_a_teammate_gone_silent_is_not_waited_for_one_taking_off_is(c_state):
+    """Under defer a vehicle of three on the one target two know of parks only when the third has gone
+    silent (failed, its last report OUT_OF_TOUCH_STEPS rounds old), not while it is taking off."""
+    a, b, c = agent(0, State.SEARCH, (1, 1)), agent(1, State.SEARCH, (2, 2)), agent(2, c_state, None)
+    r = rounds(crew(a, b, c))
+    r.policy = FieldPolicy("coordinated")
+    r.state.step = 1 + OUT_OF_TOUCH_STEPS + 1
+    a.knowledge.set_position(r.state.step, (1, 1))
+    a.knowledge.merge_position(1, Position(r.state.step, (2, 2), False))
+    a.knowledge.merge_position(2, Position(1, (4, 4), False))  # c's last report
+    a.knowledge.add_targets(np.array([[1, 1], [3, 3]]), step=1)
+    r.update_states()
+    assert r.out_of_touch(a) == (1 if c_state is State.FAILED else 0)
+    assert a.state is (State.HOVER if c_state is State.FAILED else State.SEARCH)
 
 
 def test_under_the_hover_rule_no_the_swarm_holds_once_every_vehicle_sits_on_a_target_of_its_own():
