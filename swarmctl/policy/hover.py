@@ -16,7 +16,7 @@ simulator a parked vehicle may then leave its target where the controller's HOVE
 
 Over a lossy channel a vehicle knows fewer targets than the swarm does, and with 10 vehicles on a
 50 x 50 map the swarm's vehicles each waited for targets the others had found until the step limit
-(docs/RESULTS.md, "A hover rule that holds up when knowledge is lost"). So a teammate not heard from
+(docs/RESULTS.md, "When knowledge is lost"). So a teammate not heard from
 in the last OUT_OF_TOUCH_STEPS steps is not counted among the vehicles the known targets must cover:
 it may hold a target this vehicle never heard of, and nobody can wait for it. One never heard from
 counts as heard at step 0 (the swarm sets out together); the controller counts the vehicles it flies
