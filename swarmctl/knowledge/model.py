@@ -40,7 +40,7 @@ from swarmctl.knowledge.arrays import (
     position_key,
     split_key,
 )
-from swarmctl.world.beliefs import Beliefs, ObservationSettings
+from swarmctl.world.beliefs import Beliefs, ObservationSettings, silent_since
 from swarmctl.world.observe import observe
 from swarmctl.world.scenario import fov_offsets, value_map
 
@@ -358,11 +358,12 @@ class Knowledge:
         """How many of the other `vehicles` (ids 0..vehicles-1) this vehicle has no report from of step
         `step - steps` or later, one never heard from counting as heard at step 0 and the ids `in_touch`
         as heard now (as Beliefs.out_of_touch reads the beliefs beliefs_from_knowledge makes)."""
-        heard = np.zeros(vehicles, dtype=np.int64)
-        keys = self._position[:vehicles]
-        heard[: keys.size] = np.maximum(keys, 0) >> STEP_SHIFT
-        silent = heard < step - steps
-        silent[[v for v in {self.vehicle_id, *in_touch} if 0 <= v < vehicles]] = False
+        keys = np.full(vehicles, UNKNOWN, dtype=np.int64)
+        known = self._position[:vehicles]
+        keys[: known.size] = known
+        silent = silent_since(heard_steps(keys, step, in_touch), step, steps)
+        if self.vehicle_id < vehicles:
+            silent[self.vehicle_id] = False
         return int(silent.sum())
 
     def known_targets(self) -> np.ndarray:
@@ -543,6 +544,14 @@ class Knowledge:
             self._position[vehicle] = key
 
 
+def heard_steps(keys: np.ndarray, step: int, in_touch: Collection[int] = ()) -> np.ndarray:
+    """(..., N) the step of each vehicle's newest report in the position keys `keys` (-1: none), the
+    ids `in_touch` (heard otherwise: the controller's own vehicles on their links) set to `step`."""
+    heard: np.ndarray = np.where(keys >= 0, keys >> STEP_SHIFT, -1)
+    heard[..., [v for v in in_touch if 0 <= v < keys.shape[-1]]] = step
+    return heard
+
+
 def beliefs_from_knowledge(
     knowledges: list[Knowledge],
     vehicles: int | None = None,
@@ -592,9 +601,7 @@ def beliefs_from_knowledge(
         keys = np.concatenate([keys, np.full((a, n - keys.shape[1]), UNKNOWN, dtype=np.int64)], axis=1)
     keys = keys[:, :n]
     positions = key_cells(keys)[None]
-    heard = np.where(keys >= 0, keys >> STEP_SHIFT, -1)  # the step of each vehicle's newest report
-    heard[:, [v for v in in_touch if 0 <= v < n]] = step  # vehicles the caller hears otherwise (their links)
-    heard = heard[None]
+    heard = heard_steps(keys, step, in_touch)[None]
     hover = (keys >= 0) & (keys & 1).astype(bool)
     hover[np.arange(a), me] = np.asarray(hovering, dtype=bool) if hovering is not None else False
     hover = hover[None]

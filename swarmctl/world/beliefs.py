@@ -42,6 +42,13 @@ SCALES_VARIANT = "scales-v1"  # crops at 1, 3 and 9 cells a pixel: a fixed metri
 VARIANT_CHANNELS = {PAPER_VARIANT: 3, GLOBAL_LOCAL_VARIANT: 7, SCALES_VARIANT: 24}
 
 
+def silent_since(heard: np.ndarray, step: int, steps: int) -> np.ndarray:
+    """bool, heard's shape: not heard from in the `steps` steps before `step` (`heard`: the step of the
+    last report, -1 for none, which counts as heard at step 0: the swarm sets out together)."""
+    result: np.ndarray = np.maximum(heard, 0) < step - steps
+    return result
+
+
 @dataclass(frozen=True)
 class ObservationSettings:
     """How beliefs become an observation (the checkpoint's world config stores them)."""
@@ -310,7 +317,7 @@ class Beliefs:
         if self.heard is None:
             return np.zeros(self.me.shape, dtype=np.int64)
         others = np.arange(self.vehicles)[None, None, :] != self.me[..., None]
-        silent = np.maximum(self.heard, 0) < self.step - steps
+        silent = silent_since(self.heard, self.step, steps)
         result: np.ndarray = (silent & others).sum(-1)
         return result
 
